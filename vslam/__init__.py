@@ -1,0 +1,2 @@
+"""vslam: visual SLAM in Python."""
+__version__ = "0.1.0"

@@ -1,0 +1,5 @@
+import sys
+
+from vslam.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""vslam.reconstruction"""
