@@ -1,0 +1,1 @@
+"""Benchmark definitions (importable so that `vslam bench` can run them)."""

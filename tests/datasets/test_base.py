@@ -1,0 +1,81 @@
+"""Shared helpers: TUM association, GT interpolation, camera YAML parsing."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from vslam.datasets.base import associate, interpolate_poses, read_camera_yaml
+from vslam.errors import CalibrationError
+from vslam.eval.trajectory import Trajectory
+
+
+def _associate_reference(first, second, offset, max_difference):
+    """TUM associate.py, written out literally (all pairs, sort by |dt|, greedy)."""
+    cands = sorted(
+        (abs(a - (b + offset)), i, j)
+        for i, a in enumerate(first) for j, b in enumerate(second) if abs(a - (b + offset)) < max_difference
+    )
+    used1, used2, out = set(), set(), []
+    for _, i, j in cands:
+        if i not in used1 and j not in used2:
+            used1.add(i), used2.add(j), out.append((i, j))
+    return sorted(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_associate_matches_reference(seed):
+    rng = np.random.default_rng(seed)
+    t1 = np.sort(rng.uniform(0, 10, 300))
+    t2 = np.sort(rng.uniform(0, 10, 250))
+    got = associate(t1, t2, offset=0.003, max_difference=0.02)
+    ref = _associate_reference(t1, t2, 0.003, 0.02)
+    assert len(ref) > 50
+    assert [tuple(p) for p in got] == ref
+
+
+def test_associate_each_used_once():
+    got = associate(np.array([0.0, 0.01]), np.array([0.005]), max_difference=0.02)
+    assert got.tolist() == [[0, 0]]  # both are 5 ms away; the first candidate wins, used once
+    assert associate(np.array([0.0]), np.array([1.0])).shape == (0, 2)
+
+
+def test_interpolate_poses_slerp_and_gaps():
+    rng = np.random.default_rng(3)
+    tg = np.array([0.0, 0.01, 0.02, 0.5, 0.51])
+    R = Rotation.from_rotvec(rng.normal(size=(5, 3)) * 0.3)
+    T = np.tile(np.eye(4), (5, 1, 1))
+    T[:, :3, :3] = R.as_matrix()
+    T[:, :3, 3] = rng.normal(size=(5, 3))
+    gt = Trajectory(tg, T)
+    q = np.array([-0.1, 0.0, 0.004, 0.013, 0.3, 0.505, 0.6])
+    Tq, valid = interpolate_poses(gt, q, max_gap=0.1)
+    assert valid.tolist() == [False, True, True, True, False, True, False]
+    np.testing.assert_allclose(Tq[1], T[0])
+    a = 0.4
+    np.testing.assert_allclose(Tq[2, :3, 3], (1 - a) * T[0, :3, 3] + a * T[1, :3, 3], atol=1e-12)
+    ref = Slerp(tg, R)(q[[2, 3, 5]]).as_matrix()
+    np.testing.assert_allclose(Tq[[2, 3, 5], :3, :3], ref, atol=1e-12)
+    assert np.all(np.isnan(Tq[~valid]))
+
+
+def test_camera_yaml_small_and_orbslam(tmp_path):
+    p = tmp_path / "camera.yaml"
+    p.write_text("fx: 500\nfy: 501\ncx: 320\ncy: 240\nwidth: 640\nheight: 480\ndist: [0.1, -0.2, 0.001, 0.002]\n"
+                 "baseline: 0.12\nfps: 20\n")
+    cam, extras = read_camera_yaml(p)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (500, 501, 320, 240, 640, 480)
+    assert cam.dist == (0.1, -0.2, 0.001, 0.002, 0.0) and cam.baseline == 0.12
+    assert extras == {"fps": 20.0}
+    p.write_text("fx: 500\nfy: 501\ncx: 320\ncy: 240\n")
+    with pytest.raises(CalibrationError, match="lacks 'width'"):
+        read_camera_yaml(p)
+    cam, _ = read_camera_yaml(p, image_size=(752, 480))
+    assert (cam.width, cam.height) == (752, 480)
+    orb = tmp_path / "TUM3.yaml"
+    orb.write_text("%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\n"
+                   "Camera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\nCamera.fps: 30.0\n"
+                   "Camera.bf: 40.0\nDepthMapFactor: 5000.0\n")
+    cam, extras = read_camera_yaml(orb, image_size=(640, 480))
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == (535.4, 539.2, 320.1, 247.6)
+    assert cam.baseline == pytest.approx(40 / 535.4) and extras == {"depth_scale": 5000.0, "fps": 30.0}

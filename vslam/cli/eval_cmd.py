@@ -1,0 +1,71 @@
+"""``vslam eval EST GT``: ATE, RPE (and the KITTI metric) of an estimated trajectory."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from vslam.errors import TrajectoryError
+
+FORMATS = ["tum", "kitti", "euroc"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "eval", help="evaluate a trajectory against ground truth (ATE, RPE, KITTI)",
+        description="Compare an estimated trajectory with ground truth: associate timestamps, align "
+                    "(SE(3), Sim(3) or none) and print ATE, RPE and optionally the KITTI odometry metric. "
+                    "KITTI files without a times file are associated by line index.",
+    )
+    p.add_argument("est", help="estimated trajectory (TUM, KITTI or EuRoC CSV; detected)")
+    p.add_argument("gt", help="ground-truth trajectory")
+    p.add_argument("--align", choices=["se3", "sim3", "none", "scale", "origin"], default="se3",
+                   help="alignment of the estimate onto GT (default se3; sim3 for monocular)")
+    p.add_argument("--align-first", type=int, metavar="N", help="estimate the alignment from the first N matched poses")
+    p.add_argument("--est-format", choices=FORMATS, help="format of EST (default: detected)")
+    p.add_argument("--gt-format", choices=FORMATS, help="format of GT (default: detected)")
+    p.add_argument("--est-times", help="times file for a KITTI-format EST")
+    p.add_argument("--gt-times", help="times file for a KITTI-format GT")
+    p.add_argument("--max-diff", type=float, default=0.01, help="max timestamp difference in s (default 0.01)")
+    p.add_argument("--offset", type=float, default=0.0, help="seconds added to EST timestamps (default 0)")
+    p.add_argument("--by-index", action="store_true", help="pair poses by index instead of timestamps")
+    p.add_argument("--duplicates", choices=["error", "keep-last"], default="error",
+                   help="repeated timestamps: fail (default) or keep the last pose, as the TUM tools do")
+    p.add_argument("--delta", type=float, default=1, help="RPE step (default 1)")
+    p.add_argument("--delta-unit", choices=["frames", "m"], default="frames", help="unit of --delta")
+    p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
+    p.add_argument("--kitti", action="store_true", help="also compute the KITTI odometry metric")
+    p.add_argument("--lengths", type=float, nargs="+", metavar="M",
+                   help="KITTI segment lengths in m (default 100 200 ... 800; e.g. 5 10 20 for short runs)")
+    p.add_argument("--json", metavar="OUT.json", help="write all numbers to a JSON file")
+    p.add_argument("--plot", metavar="OUT.png", help="write a plot (top view and ATE along time)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from vslam.eval.evaluate import evaluate_files
+
+    overrides = {}
+    if args.by_index:
+        overrides["by_index"] = True
+    result = evaluate_files(
+        args.est, args.gt, est_format=args.est_format, gt_format=args.gt_format,
+        est_times=args.est_times, gt_times=args.gt_times, duplicates=args.duplicates.replace("-", "_"),
+        align=args.align, align_first=args.align_first, max_diff=args.max_diff, offset=args.offset,
+        rpe_delta=args.delta, rpe_delta_unit=args.delta_unit, rpe_all_pairs=args.all_pairs,
+        kitti=args.kitti or bool(args.lengths), kitti_lengths=tuple(args.lengths) if args.lengths else None,
+        **overrides,
+    )
+    print(result.summary())
+    if args.json:
+        out = Path(args.json)
+        if not out.parent.is_dir():
+            raise TrajectoryError(f"{out}: cannot write the JSON, folder {out.parent} does not exist")
+        out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        print(f"wrote {out}")
+    if args.plot:
+        from vslam.eval.plot import plot_evaluation
+
+        print(f"wrote {plot_evaluation(result, args.plot)}")
+    return 0
