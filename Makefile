@@ -1,22 +1,30 @@
 # The two set-up commands (see README): `make demo` and `make test`.
 PYTHON ?= python3
 VENV ?= .venv
-PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
+# Debian packages: libgl1/libgomp1 for the OpenCV and Open3D wheels, libusb for Open3D,
+# chromium for the HTML-report browser test.
+BASE_DEBS := libgl1 libgomp1
+TEST_DEBS := $(BASE_DEBS) libusb-1.0-0 chromium
+TEST_EXTRAS := test,dense,viz,ray
 
-.PHONY: demo test install clean
+.PHONY: demo test install install-test clean
 
-$(STAMP): pyproject.toml scripts/bootstrap.sh
-	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)"
-	touch $(STAMP)
+$(VENV)/.installed: pyproject.toml scripts/bootstrap.sh
+	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)" "" $(BASE_DEBS)
+	touch $@
 
-install: $(STAMP)
+$(VENV)/.installed-test: pyproject.toml scripts/bootstrap.sh
+	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)" "$(TEST_EXTRAS)" $(TEST_DEBS)
+	touch $@ $(VENV)/.installed
 
-demo: $(STAMP)
+install: $(VENV)/.installed
+install-test: $(VENV)/.installed-test
+
+demo: $(VENV)/.installed
 	$(VENV)/bin/vslam demo --output demo_output
 
-test: $(STAMP)
-	$(PY) -m pytest -q
+test: $(VENV)/.installed-test
+	$(VENV)/bin/python -m pytest -q
 
 clean:
 	rm -rf $(VENV) demo_output

@@ -1,35 +1,42 @@
 #!/usr/bin/env bash
-# Create the virtual environment and install vslam with its test extras.
-# Installs the few Debian packages the optional extras need when run as root.
+# Create the virtual environment and install vslam.
+#   scripts/bootstrap.sh PYTHON VENV [EXTRAS] [DEBIAN_PACKAGES...]
+# EXTRAS is a comma list of pyproject extras (e.g. "test,dense,viz,ray"). Debian packages are
+# installed with apt-get when missing (root only; otherwise a clear message says what to install).
 set -euo pipefail
 PYTHON="${1:-python3}"
 VENV="${2:-.venv}"
+EXTRAS="${3:-}"
+shift $(( $# < 3 ? $# : 3 ))
+DEBS=("$@")
 
 if ! command -v "$PYTHON" >/dev/null 2>&1; then
   echo "error: $PYTHON not found; install Python >= 3.11 first" >&2; exit 1
 fi
 if ! "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)'; then
-  echo "error: vslam needs Python >= 3.11 (found $("$PYTHON" --version))" >&2; exit 1
+  echo "error: vslam needs Python >= 3.11 (found $("$PYTHON" --version 2>&1))" >&2; exit 1
 fi
-if ! "$PYTHON" -m venv --help >/dev/null 2>&1; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    apt-get update -qq && apt-get install -y -qq python3-venv
+
+missing=()
+for pkg in "${DEBS[@]}"; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+done
+"$PYTHON" -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
+if [ ${#missing[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "installing Debian packages: ${missing[*]}"
+    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null \
+      || { echo "error: could not install Debian packages: ${missing[*]}" >&2; exit 1; }
   else
-    echo "error: the Python venv module is missing (Debian: apt-get install python3-venv)" >&2; exit 1
+    echo "error: missing system packages: ${missing[*]} (Debian: sudo apt-get install ${missing[*]})" >&2; exit 1
   fi
 fi
-# Debian libraries that OpenCV/Open3D wheels load at import time.
-if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-  missing=""
-  for lib in libgl1 libgomp1 libusb-1.0-0; do
-    dpkg -s "$lib" >/dev/null 2>&1 || missing="$missing $lib"
-  done
-  if [ -n "$missing" ]; then
-    echo "installing Debian packages:$missing"
-    (apt-get update -qq && apt-get install -y -qq $missing) || echo "warning: could not install$missing" >&2
-  fi
-fi
-"$PYTHON" -m venv "$VENV"
+
+[ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
-"$VENV/bin/python" -m pip install -q -e ".[test]"
-echo "vslam installed in $VENV"
+spec="."
+[ -n "$EXTRAS" ] && spec=".[${EXTRAS}]"
+"$VENV/bin/python" -m pip install -q -e "$spec"
+# rerun's CLI asks about telemetry on first use; answer it once, non-interactively.
+if [ -x "$VENV/bin/rerun" ]; then "$VENV/bin/rerun" analytics disable >/dev/null 2>&1 </dev/null || true; fi
+echo "vslam installed in $VENV${EXTRAS:+ with extras $EXTRAS}"

@@ -1,0 +1,93 @@
+"""SE(3) / Sim(3) pose graphs on simulated loops with drift (vslam.backend.drift_demo.simulate_loop)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vslam.backend.drift_demo import ate_rmse, close_loop, simulate_loop
+from vslam.backend.pose_graph import correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix
+from vslam.backend.schur_lm import so3_exp
+from vslam.errors import GeometryError
+
+
+def test_se3_loop_closure_reduces_ate_5x():
+    sim = simulate_loop(n_poses=100, noise=1.0, seed=0)
+    before = ate_rmse(sim.T_odom, sim.T_true)
+    T = close_loop(sim)
+    after = ate_rmse(T, sim.T_true)
+    assert before > 0.5  # ~1 m of drift on a 62 m loop
+    assert after < before / 5.0, (before, after)  # measured 1.01 -> 0.022 m
+    np.testing.assert_allclose(T[0], sim.T_odom[0], atol=1e-12)  # the fixed node stays
+    assert np.linalg.norm(T[-1, :3, 3] - sim.T_true[-1, :3, 3]) < 0.01
+
+
+def test_sim3_corrects_scale_drift():
+    sim = simulate_loop(n_poses=100, noise=0.5, scale_drift=0.005, seed=1)
+    assert sim.scale[-1] > 1.6  # the local map at the end is 64 % too large
+    S = close_loop(sim, sim3=True)
+    _, _, s_end = sim3_decompose(S[-1])
+    # the end node's scale undoes the drift: s_end * drift = 1 within 2 %
+    assert abs(s_end * sim.scale[-1] - 1.0) < 0.02, s_end * sim.scale[-1]
+    before = ate_rmse(sim.T_odom, sim.T_true)
+    after = ate_rmse(S, sim.T_true)
+    assert after < before / 5.0, (before, after)  # measured 3.3 -> 0.07 m
+    # an SE(3) graph cannot absorb scale drift
+    T_se3 = close_loop(sim, sim3=False)
+    assert ate_rmse(T_se3, sim.T_true) > 5 * after
+
+
+def test_correct_points_follows_the_reference_keyframe():
+    # a point seen from a drifted, scale-drifted keyframe lands at its true position after Sim(3) correction
+    sim = simulate_loop(n_poses=100, noise=0.5, scale_drift=0.005, seed=1)
+    S = close_loop(sim, sim3=True)
+    k = 80
+    X_cam_true = np.array([[0.5, -0.2, 4.0]])
+    X_true = X_cam_true @ sim.T_true[k, :3, :3].T + sim.T_true[k, :3, 3]
+    # in the drifted map the point sits at the drifted local scale in front of the drifted pose
+    X_drift = (sim.scale[k] * X_cam_true) @ sim.T_odom[k, :3, :3].T + sim.T_odom[k, :3, 3]
+    X_fixed = correct_points(X_drift, np.array([k]), sim.T_odom, S)
+    assert np.linalg.norm(X_drift - X_true) > 1.0
+    assert np.linalg.norm(X_fixed - X_true) < 0.15, np.linalg.norm(X_fixed - X_true)  # measured 4.8 m -> 0.09 m
+    with pytest.raises(GeometryError):
+        correct_points(X_drift, np.array([500]), sim.T_odom, S)
+
+
+def test_small_chain_is_exact_and_information_weights_count():
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[1, 0, 3], T[2, 0, 3] = 1.1, 2.3
+    step = np.eye(4)
+    step[0, 3] = 1.0
+    res = optimize_pose_graph(T, [(0, 1, step), (1, 2, step), (0, 2, step @ step)])
+    np.testing.assert_allclose(res.T_world_cam[:, 0, 3], [0.0, 1.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose(res.scales, 1.0)
+    # conflicting edges: the heavily weighted one wins
+    long = step @ step
+    long[0, 3] = 2.2
+    res = optimize_pose_graph(T, [(0, 1, step), (1, 2, step), (0, 2, long, 1e4)])
+    assert abs(res.T_world_cam[2, 0, 3] - 2.2) < 1e-3
+    assert res.final_error < res.initial_error
+
+
+def test_sim3_helpers_round_trip():
+    R = so3_exp(np.array([[0.1, -0.2, 0.3]]))[0]
+    S = sim3_matrix(R, np.array([1.0, 2.0, 3.0]), 1.7)
+    R2, t2, s2 = sim3_decompose(S)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+    np.testing.assert_allclose(t2, [1.0, 2.0, 3.0])
+    assert abs(s2 - 1.7) < 1e-12
+    # a graph with one Sim(3) edge reproduces it exactly
+    res = optimize_pose_graph(np.tile(np.eye(4), (2, 1, 1)), [(0, 1, S)], sim3=True)
+    np.testing.assert_allclose(res.S_world_cam[1], S, atol=1e-8)
+    assert abs(res.scales[1] - 1.7) < 1e-8
+
+
+def test_bad_input_raises():
+    T = np.tile(np.eye(4), (2, 1, 1))
+    with pytest.raises(GeometryError):
+        optimize_pose_graph(T, [(0, 5, np.eye(4))])
+    with pytest.raises(GeometryError):
+        optimize_pose_graph(T, [])
+    with pytest.raises(GeometryError):
+        optimize_pose_graph(T, [(0, 1, np.eye(4))], fixed=[])
+    with pytest.raises(GeometryError):
+        optimize_pose_graph(T, [(0, 1, np.eye(4), np.eye(3))])

@@ -1,0 +1,210 @@
+"""SE(3) and Sim(3) pose-graph optimization with GTSAM (loop closing's essential-graph step).
+
+Nodes are the keyframe poses ``T_world_cam`` (Sim(3): ``S_world_cam = [s R, t; 0, 1]``, mapping
+``X_world = s R X_cam + t``). An edge ``(i, j, T_i_j)`` measures the pose of node ``j`` in the frame
+of node ``i``, ``T_i_j = T_world_i^-1 T_world_j`` (Sim(3): ``S_i_j``, whose scale is the ratio of
+the local map scales, e.g. the scale of a monocular loop closure). The cost is (Kuemmerle et al.,
+"g2o", ICRA 2011; Strasdat et al., "Scale drift-aware large scale monocular SLAM", RSS 2010)
+
+    sum_edges || Log(Z_ij^-1 X_i^-1 X_j) ||^2_{Omega_ij}
+
+with ``BetweenFactorPose3`` / ``BetweenFactorSimilarity3``, fixed nodes held by
+``NonlinearEquality``. Tangent order is GTSAM's: ``(rotation, translation)`` for SE(3) and
+``(rotation, translation, log scale)`` for Sim(3); an edge ``information`` matrix uses that order.
+ORB-SLAM2 (Sec. VI-D) optimizes the essential graph (spanning tree, covisibility >= 100, loop edges)
+this way and then maps every point with its reference keyframe's correction.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from vslam.backend.config import PoseGraphConfig
+from vslam.errors import GeometryError
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass
+class PoseGraphResult:
+    """Optimized nodes: rigid ``T_world_cam (K, 4, 4)``, ``scales (K,)`` (ones for SE(3)) and the
+    similarity ``S_world_cam (K, 4, 4) = [s R, t; 0, 1]``; errors are GTSAM's ``0.5 sum ||e||^2_Omega``."""
+
+    T_world_cam: np.ndarray
+    scales: np.ndarray
+    S_world_cam: np.ndarray
+    initial_error: float
+    final_error: float
+    iterations: int
+    time_s: float
+
+
+def sim3_matrix(R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
+    """``[s R, t; 0, 1]`` as a 4x4 array."""
+    S = np.eye(4)
+    S[:3, :3] = s * np.asarray(R)
+    S[:3, 3] = t
+    return S
+
+
+def sim3_decompose(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Inverse of :func:`sim3_matrix`: ``(R, t, s)`` with ``s = det(S[:3, :3]) ** (1/3)``."""
+    S = np.asarray(S, dtype=float)
+    s = float(np.cbrt(np.linalg.det(S[:3, :3])))
+    if not s > 0:
+        raise GeometryError(f"Sim(3) matrix has a non-positive scale (det {np.linalg.det(S[:3, :3]):.3g})")
+    return S[:3, :3] / s, S[:3, 3].copy(), s
+
+
+def _to_gtsam_sim3(S: np.ndarray):
+    import gtsam
+
+    R, t, s = sim3_decompose(S)
+    U, _, Vt = np.linalg.svd(R)
+    return gtsam.Similarity3(gtsam.Rot3(U @ Vt), t / s, s)  # GTSAM maps p -> s (R p + t_g)
+
+
+def _from_gtsam_sim3(S) -> np.ndarray:
+    return sim3_matrix(S.rotation().matrix(), S.scale() * np.asarray(S.translation()), S.scale())
+
+
+def _noise(info: np.ndarray | float | None, dim: int, config: PoseGraphConfig):
+    import gtsam
+
+    if info is None:
+        sig = [config.default_sigma_rotation] * 3 + [config.default_sigma_translation] * 3
+        if dim == 7:
+            sig.append(config.default_sigma_scale)
+        return gtsam.noiseModel.Diagonal.Sigmas(np.array(sig))
+    info = np.asarray(info, dtype=float)
+    if info.ndim == 0:  # a scalar weight multiplies the default information
+        base = np.array([config.default_sigma_rotation] * 3 + [config.default_sigma_translation] * 3
+                        + ([config.default_sigma_scale] if dim == 7 else []))
+        return gtsam.noiseModel.Diagonal.Sigmas(base / np.sqrt(float(info)))
+    if info.shape != (dim, dim):
+        raise GeometryError(f"pose-graph edge information must be ({dim}, {dim}), got {info.shape}")
+    return gtsam.noiseModel.Gaussian.Information(info)
+
+
+def optimize_pose_graph(
+    T_world_cam: np.ndarray,
+    edges: Iterable[Sequence],
+    fixed: Sequence[int] = (0,),
+    sim3: bool = False,
+    config: PoseGraphConfig | None = None,
+) -> PoseGraphResult:
+    """Optimize node poses given relative-pose edges.
+
+    Args:
+        T_world_cam: ``(K, 4, 4)`` initial poses (rigid; Sim(3) starts every scale at 1).
+        edges: items ``(i, j, T_i_j)`` or ``(i, j, T_i_j, information)`` with node indices ``i, j``,
+            ``T_i_j`` ``(4, 4)`` (a Sim(3) matrix ``[s R, t; 0, 1]`` when ``sim3``), ``information``
+            a ``(6, 6)`` / ``(7, 7)`` matrix in GTSAM tangent order, a scalar weight on the
+            default sigmas of ``config``, or ``None``.
+        fixed: node indices held constant (the gauge; at least one).
+        sim3: optimize Sim(3) nodes (monocular scale drift) instead of SE(3).
+
+    Returns:
+        :class:`PoseGraphResult`.
+
+    Example:
+        >>> T = np.tile(np.eye(4), (3, 1, 1)); T[1, 0, 3] = 1.1; T[2, 0, 3] = 2.3
+        >>> step = np.eye(4); step[0, 3] = 1.0
+        >>> edges = [(0, 1, step), (1, 2, step), (0, 2, step @ step)]
+        >>> res = optimize_pose_graph(T, edges)
+        >>> np.round(res.T_world_cam[:, 0, 3], 3).tolist()
+        [0.0, 1.0, 2.0]
+    """
+    import gtsam
+
+    config = config or PoseGraphConfig()
+    t0 = time.perf_counter()
+    T_world_cam = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)
+    n = len(T_world_cam)
+    if n == 0:
+        raise GeometryError("pose graph has no nodes")
+    if not np.all(np.isfinite(T_world_cam)):
+        raise GeometryError("pose graph initial poses contain NaN/inf")
+    fixed = sorted({int(f) for f in fixed})
+    if not fixed or min(fixed) < 0 or max(fixed) >= n:
+        raise GeometryError(f"pose graph needs fixed node indices in [0, {n}), got {fixed}")
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    dim = 7 if sim3 else 6
+    for k in range(n):
+        if sim3:
+            values.insert(k, _to_gtsam_sim3(T_world_cam[k]))
+        else:
+            U, _, Vt = np.linalg.svd(T_world_cam[k, :3, :3])
+            values.insert(k, gtsam.Pose3(gtsam.Rot3(U @ Vt), T_world_cam[k, :3, 3]))
+    n_edges = 0
+    for e in edges:
+        if len(e) not in (3, 4):
+            raise GeometryError(f"pose-graph edge must be (i, j, T_i_j[, information]), got {len(e)} items")
+        i, j, Z = int(e[0]), int(e[1]), np.asarray(e[2], dtype=float)
+        info = e[3] if len(e) == 4 else None
+        if not (0 <= i < n and 0 <= j < n) or i == j:
+            raise GeometryError(f"pose-graph edge ({i}, {j}) references nodes outside [0, {n}) or a self-loop")
+        if Z.shape != (4, 4) or not np.all(np.isfinite(Z)):
+            raise GeometryError(f"pose-graph edge ({i}, {j}) measurement must be a finite 4x4 matrix")
+        model = _noise(info, dim, config)
+        if sim3:
+            graph.add(gtsam.BetweenFactorSimilarity3(i, j, _to_gtsam_sim3(Z), model))
+        else:
+            U, _, Vt = np.linalg.svd(Z[:3, :3])
+            graph.add(gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(gtsam.Rot3(U @ Vt), Z[:3, 3]), model))
+        n_edges += 1
+    if n_edges == 0:
+        raise GeometryError("pose graph has no edges")
+    for k in fixed:
+        if sim3:
+            graph.add(gtsam.NonlinearEqualitySimilarity3(k, values.atSimilarity3(k)))
+        else:
+            graph.add(gtsam.NonlinearEqualityPose3(k, values.atPose3(k)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.max_iterations)
+    params.setRelativeErrorTol(config.relative_tolerance)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    initial_error = graph.error(values)
+    result = optimizer.optimize()
+    S_out = np.empty((n, 4, 4))
+    for k in range(n):
+        if sim3:
+            S_out[k] = _from_gtsam_sim3(result.atSimilarity3(k))
+        else:
+            S_out[k] = result.atPose3(k).matrix()
+    scales = np.cbrt(np.linalg.det(S_out[:, :3, :3]))
+    T_out = S_out.copy()
+    T_out[:, :3, :3] /= scales[:, None, None]
+    out = PoseGraphResult(
+        T_world_cam=T_out, scales=scales, S_world_cam=S_out, initial_error=float(initial_error),
+        final_error=float(graph.error(result)), iterations=int(optimizer.iterations()),
+        time_s=time.perf_counter() - t0,
+    )
+    LOG.debug("pose graph (%s, %d nodes, %d edges): error %.4g -> %.4g in %d iterations",
+              "Sim3" if sim3 else "SE3", n, n_edges, out.initial_error, out.final_error, out.iterations)
+    return out
+
+
+def correct_points(X_world: np.ndarray, ref_node: np.ndarray, T_world_cam_before: np.ndarray,
+                   S_world_cam_after: np.ndarray) -> np.ndarray:
+    """Move points with their reference keyframe's correction (ORB-SLAM2 loop correction, Sec. VII-B).
+
+    ``X_new = S_world_cam_after[k] (T_world_cam_before[k]^-1 X)`` with ``k = ref_node`` of each point:
+    the point keeps its coordinates in its reference camera, which now sits (and, for Sim(3), is
+    scaled) as optimized. ``X_world (N, 3)``, ``ref_node (N,)`` node indices, poses ``(K, 4, 4)``
+    (``S_world_cam_after`` may be :attr:`PoseGraphResult.S_world_cam` or rigid poses).
+    """
+    X_world = np.asarray(X_world, dtype=float).reshape(-1, 3)
+    ref = np.asarray(ref_node, dtype=np.int64).reshape(-1)
+    Tb = np.asarray(T_world_cam_before, dtype=float)
+    Sa = np.asarray(S_world_cam_after, dtype=float)
+    if len(ref) != len(X_world) or (len(ref) and (ref.min() < 0 or ref.max() >= len(Tb) or len(Tb) != len(Sa))):
+        raise GeometryError("correct_points: ref_node must index the (equal-length) pose arrays, one per point")
+    R = Tb[ref, :3, :3]
+    X_cam = np.einsum("nji,nj->ni", R, X_world - Tb[ref, :3, 3])
+    return np.einsum("nij,nj->ni", Sa[ref, :3, :3], X_cam) + Sa[ref, :3, 3]

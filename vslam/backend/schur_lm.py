@@ -1,0 +1,426 @@
+"""Vectorized Levenberg-Marquardt for bundle adjustment on the reduced camera system (Schur complement).
+
+Why a NumPy solver next to GTSAM: with ~15 000 reprojection factors GTSAM's Python-built graph spends
+0.15-0.3 s per LM iteration here (per-factor linearization and elimination of 3 000 tiny point
+cliques), so a BA takes > 1 s; this solver needs ~15 ms per iteration. Bundle adjustment has a fixed block structure that vectorizes: every
+observation gives one ``3 x 6`` camera block and one ``3 x 3`` point block, the point blocks of the
+Hessian are ``3 x 3`` diagonal blocks, and eliminating the points first (Schur complement) leaves a
+small dense ``6K x 6K`` camera system (Triggs et al., "Bundle Adjustment - A Modern Synthesis",
+2000, Sec. 6.1; Hartley & Zisserman A6.3). Per iteration:
+
+    H = J^T W J,  g = J^T W r            (W = per-row information x robust IRLS weight)
+    [U   Wc] [dc]   [gc]                 U: camera blocks, V: point blocks (block diagonal)
+    [Wc^T V] [dp] = [gp]
+    S = U - Wc V^-1 Wc^T,  S dc = gc - Wc V^-1 gp,  dp = V^-1 (gp - Wc^T dc)
+
+with Marquardt damping ``diag(H) (1 + lambda)`` and Huber weights by iteratively reweighted least
+squares (``w = 1`` for ``sqrt(chi2) <= k``, else ``k / sqrt(chi2)``; the cost is Huber's rho).
+
+Parametrization: the solver works on ``T_cam_world = (R, t)``; a step ``delta = (rho, phi)`` updates
+``R <- Exp(phi) R``, ``t <- Exp(phi) t + rho`` so that ``X_cam <- Exp(phi) X_cam + rho`` and
+``d X_cam / d delta = [I, -[X_cam]_x]`` at ``delta = 0``. Measurements per observation are
+``(u, v, u_right)`` with ``u = fx x/z + cx``, ``v = fy y/z + cy``, ``u_right = u - fx b / z``
+(rectified stereo, or RGB-D with a virtual baseline); monocular rows carry zero weight on ``u_right``.
+
+Implementation notes: per-observation quantities are component-major ``(a, b, M)`` arrays (each row
+a contiguous ``(M,)`` vector) contracted with ``einsum``; observations are sorted by camera so camera
+sums are one ``reduceat``. The coupling ``W`` is a dense array for local BA (Schur complement = one
+GEMM) and BSR block-sparse for large global BA. BLAS is held to one thread during a solve
+(threadpoolctl; process-wide while it runs): on a busy machine threaded GEMMs were 30x slower.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+
+try:  # BLAS threads on a busy 2-core machine make the 60 x 9000 GEMM 30x slower; one thread is best
+    from threadpoolctl import ThreadpoolController
+except ImportError:  # pragma: no cover - optional
+    ThreadpoolController = None
+
+LOG = logging.getLogger(__name__)
+
+
+def so3_exp(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for ``(N, 3)`` rotation vectors -> ``(N, 3, 3)`` rotation matrices."""
+    phi = np.asarray(phi, dtype=float).reshape(-1, 3)
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-8
+    th = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
+    K = np.zeros((len(phi), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+@dataclass
+class Observations:
+    """Resolved observations: camera/point row indices and measurements.
+
+    ``meas (M, 3)`` holds ``(u, v, u_right)`` (``u_right`` 0 where mono), ``baseline (M,)`` the
+    (virtual) stereo baseline per observation, ``stereo (M,)`` whether ``u_right`` is measured and
+    ``info (M,)`` the information ``1 / sigma^2``.
+    """
+
+    cam: np.ndarray
+    pt: np.ndarray
+    meas: np.ndarray
+    baseline: np.ndarray
+    stereo: np.ndarray
+    info: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.meas_T = np.ascontiguousarray(self.meas.T)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+_DENSE_LIMIT = 6_000_000  # entries of the dense 6K x 3P coupling matrix before switching to sparse
+_DENSE_GEMM_LIMIT = 300_000_000  # multiply-adds of the dense Schur GEMM; above, BSR is faster (measured)
+_CONTROLLER = None
+
+
+def _blas_single_thread():
+    """Context manager limiting BLAS to one thread (no-op without threadpoolctl)."""
+    global _CONTROLLER
+    if ThreadpoolController is None:
+        import contextlib
+
+        return contextlib.nullcontext()
+    if _CONTROLLER is None:
+        _CONTROLLER = ThreadpoolController()
+    return _CONTROLLER.limit(limits=1, user_api="blas")
+
+
+def _inv3(A: np.ndarray) -> np.ndarray:
+    """Inverse of ``(3, 3, N)`` component-major matrices by the adjugate (vectorized over ``N``)."""
+    a, b, c = A[0]
+    d, e, f = A[1]
+    g, h, i = A[2]
+    co = np.empty_like(A)
+    co[0, 0], co[0, 1], co[0, 2] = e * i - f * h, c * h - b * i, b * f - c * e
+    co[1, 0], co[1, 1], co[1, 2] = f * g - d * i, a * i - c * g, c * d - a * f
+    co[2, 0], co[2, 1], co[2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
+    co /= a * co[0, 0] + b * co[1, 0] + c * co[2, 0]
+    return co
+
+
+def _cross_rows(x: np.ndarray, y: np.ndarray, z: np.ndarray, M: np.ndarray, out: np.ndarray) -> None:
+    """``out = [X]_x M`` for component-major ``M (3, ..., N)``: row 0 = y M2 - z M1, row 1 = z M0 - x M2,
+    row 2 = x M1 - y M0 (each column of ``M`` crossed with ``X``)."""
+    np.subtract(y * M[2], z * M[1], out=out[0])
+    np.subtract(z * M[0], x * M[2], out=out[1])
+    np.subtract(x * M[1], y * M[0], out=out[2])
+
+
+def _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth):
+    """Residuals ``r (3, M)`` (measurement minus prediction), ``chi2 (M,)``, ``X_cam (3, M)`` and the
+    gathered rotations ``R (3, 3, M)``; all component-major so every row is a contiguous ``(M,)``."""
+    # np.take keeps the (a, b, M) result C-contiguous (fancy indexing on the last axis does not)
+    Rm = np.take(np.ascontiguousarray(R_cam_world.transpose(1, 2, 0)), obs.cam, axis=2)
+    Xw = np.take(np.ascontiguousarray(X_world.T), obs.pt, axis=1)
+    X_cam = np.einsum("ijm,jm->im", Rm, Xw)
+    X_cam += np.take(np.ascontiguousarray(t_cam_world.T), obs.cam, axis=1)
+    z = X_cam[2]
+    ok = z > min_depth
+    inv_z = 1.0 / np.where(ok, z, 1.0)
+    u = intr.fx * X_cam[0] * inv_z + intr.cx
+    r = np.empty((3, len(z)))
+    np.subtract(obs.meas_T[0], u, out=r[0])
+    np.subtract(obs.meas_T[1], intr.fy * X_cam[1] * inv_z + intr.cy, out=r[1])
+    r[2] = np.where(obs.stereo, obs.meas_T[2] - (u - intr.fx * obs.baseline * inv_z), 0.0)
+    chi2 = obs.info * np.einsum("im,im->m", r, r)
+    chi2[~ok] = np.inf
+    return r, chi2, X_cam, Rm
+
+
+def residuals(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray, obs: Observations,
+              intr: Intrinsics, min_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Measurement minus prediction ``r (M, 3)``, per-observation ``chi2 (M,)`` and ``X_cam (M, 3)``.
+
+    Observations with the point closer than ``min_depth`` get ``chi2 = inf``.
+    """
+    r, chi2, X_cam, _ = _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth)
+    return r.T, chi2, X_cam.T
+
+
+def _robust_cost(chi2: np.ndarray, active: np.ndarray, huber: np.ndarray | None) -> float:
+    c = chi2[active]
+    if huber is None:
+        return float(np.sum(c))
+    k = huber[active]
+    e = np.sqrt(c)
+    return float(np.sum(np.where(e <= k, c, 2.0 * k * e - k * k)))
+
+
+class _BlockW:
+    """The sparse coupling ``W`` as BSR matrices (6x3 blocks) plus its transpose (3x6 blocks)."""
+
+    def __init__(self, st: "_Structure", blocks: np.ndarray) -> None:
+        self.blocks = blocks  # (n_free_obs, 6, 3), camera-sorted observation order
+        self.W = scipy.sparse.bsr_matrix((blocks[st.order_w], st.pf[st.order_w], st.indptr_w), shape=st.shape_W)
+        self.WT = scipy.sparse.bsr_matrix(
+            (np.ascontiguousarray(blocks[st.order_t].transpose(0, 2, 1)), st.cf[st.order_t], st.indptr_t),
+            shape=st.shape_W[::-1],
+        )
+
+
+class _Structure:
+    """Index patterns that stay fixed over the iterations (built once per solve).
+
+    Observations come sorted by camera, so per-camera sums are one ``np.add.reduceat``; per-point
+    sums are ``np.bincount``. The coupling matrix ``W (6 n_c x 3 n_p)`` (camera rows, point columns)
+    is dense while the Schur GEMM ``(6 n_c)^2 x 3 n_p`` stays cheap (local BA; columns component-major,
+    ``j * P + p``), and block-sparse (BSR, columns ``3 p + j``) for large global problems.
+    """
+
+    def __init__(self, obs: Observations, cam_var: np.ndarray, n_var_cams: int, n_points: int) -> None:
+        self.n_c, self.n_p = n_var_cams, n_points
+        var = cam_var[obs.cam]
+        self.free = np.flatnonzero(var >= 0)
+        self.pf = obs.pt[self.free]
+        self.cf = var[self.free]
+        self.pt = obs.pt
+        # observations arrive sorted by camera (see solve), so camera sums are one reduceat
+        if np.any(np.diff(obs.cam) < 0):
+            raise ValueError("schur_lm: observations must be sorted by camera")
+        cams, starts = np.unique(obs.cam, return_index=True)
+        self.seg_starts = starts
+        self.seg_var = cam_var[cams]  # variable index of each segment's camera (-1: fixed)
+        self.shape_W = (6 * n_var_cams, 3 * n_points)
+        entries = self.shape_W[0] * self.shape_W[1]
+        self.dense = entries <= _DENSE_LIMIT and entries * self.shape_W[0] <= _DENSE_GEMM_LIMIT
+        if self.dense:
+            ncol = 3 * n_points
+            cam_row = np.where(var >= 0, var, n_var_cams)  # fixed cameras write to a discarded row block
+            base = 6 * cam_row * ncol + obs.pt
+            i = np.arange(6)[:, None, None]
+            j = np.arange(3)[None, :, None]
+            self.flat = (base[None, None, :] + i * ncol + j * n_points).reshape(-1)  # (6, 3, M) order
+            self._buf = np.zeros((6 * (n_var_cams + 1), ncol))
+        else:
+            self.order_w = np.lexsort((self.pf, self.cf))
+            self.indptr_w = np.concatenate([[0], np.cumsum(np.bincount(self.cf, minlength=n_var_cams))])
+            self.order_t = np.lexsort((self.cf, self.pf))
+            self.indptr_t = np.concatenate([[0], np.cumsum(np.bincount(self.pf, minlength=n_points))])
+
+    def cam_sum(self, v: np.ndarray) -> np.ndarray:
+        """Per variable camera sums of ``(k, M)`` rows -> ``(n_c, k)``."""
+        seg = np.add.reduceat(v, self.seg_starts, axis=1)
+        out = np.zeros((self.n_c, v.shape[0]))
+        keep = self.seg_var >= 0
+        out[self.seg_var[keep]] = seg[:, keep].T
+        return out
+
+    def pt_sum(self, v: np.ndarray) -> np.ndarray:
+        """Per point sums of ``(k, M)`` rows -> ``(k, P)``."""
+        return np.stack([np.bincount(self.pt, weights=row, minlength=self.n_p) for row in v])
+
+    def to_cols(self, g: np.ndarray) -> np.ndarray:
+        """A ``(3, P)`` point vector in the column order of ``W``."""
+        return g.reshape(-1) if self.dense else g.T.reshape(-1)
+
+    def from_cols(self, v: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`to_cols`."""
+        return v.reshape(3, -1) if self.dense else v.reshape(-1, 3).T
+
+    def coupling(self, Hcp: np.ndarray):
+        """``W`` from the per-observation blocks ``Hcp (6, 3, M)`` (dense array or :class:`_BlockW`)."""
+        if self.dense:
+            self._buf.reshape(-1)[self.flat] = Hcp.reshape(-1)
+            return self._buf[: self.shape_W[0]]
+        return _BlockW(self, np.ascontiguousarray(np.take(Hcp, self.free, axis=2).transpose(2, 0, 1)))
+
+    def times_blockdiag(self, W, V: np.ndarray):
+        """``Y = W @ blockdiag(V)`` for the point blocks ``V (3, 3, P)``."""
+        if self.dense:  # Y[:, k, p] = sum_j W[:, j, p] V[j, k, p]
+            W3 = W.reshape(W.shape[0], 3, self.n_p)
+            return np.einsum("ajp,jkp->akp", W3, V).reshape(W.shape)
+        Yb = W.blocks @ np.take(V, self.pf, axis=2).transpose(2, 0, 1)
+        return scipy.sparse.bsr_matrix((Yb[self.order_w], self.pf[self.order_w], self.indptr_w), shape=self.shape_W)
+
+    def schur_product(self, Y, W) -> np.ndarray:
+        """Dense ``Y @ W^T`` (the point-eliminated part of the camera system)."""
+        return Y @ W.T if self.dense else (Y @ W.WT).toarray()
+
+    def wt_dot(self, W, dc: np.ndarray) -> np.ndarray:
+        """``W^T dc`` in column order."""
+        return W.T @ dc if self.dense else W.WT @ dc
+
+
+@dataclass
+class LMResult:
+    R_cam_world: np.ndarray
+    t_cam_world: np.ndarray
+    X_world: np.ndarray
+    iterations: int
+    initial_cost: float
+    final_cost: float
+
+
+def _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st):
+    """Gauss-Newton blocks ``Hcc (n_c,6,6), gc (6 n_c,), W, Hpp (3,3,P), gp (3,P)``.
+
+    With ``Jh = d(u, v, u_r)/d X_cam``, ``A = Jh^T W Jh`` and ``b = Jh^T W r`` per observation, the point
+    Jacobian is ``Jh R`` and the camera Jacobian ``Jh G`` with ``G = [I, -[X_cam]_x]``, so
+    ``Hpp = R^T A R``, ``Hcp = G^T A R = [A R; [X]_x A R]``, ``Hcc = [[A, C^T], [C, -C [X]_x]]`` with
+    ``C = [X]_x A``, ``gp = R^T b`` and ``gc = [b; X x b]``. Everything is a component-major
+    ``(a, b, M)`` array contracted with ``einsum`` (``Jh`` has six non-zeros, written out), and the
+    sums over observations are sparse products; no ``(M, 6, 6)`` stacked matmuls.
+    """
+    ok = np.isfinite(chi2)
+    w = w_rows * ok
+    if huber is not None:
+        e = np.sqrt(np.where(ok, chi2, 0.0))
+        w *= np.where(e <= huber, 1.0, huber / np.maximum(e, 1e-12))
+    w0, w1, w2 = w
+    x, y = X_cam[0], X_cam[1]
+    inv_z = 1.0 / np.where(ok, X_cam[2], 1.0)
+    ja = intr.fx * inv_z
+    jb = intr.fy * inv_z
+    c0 = -ja * x * inv_z
+    c1 = -jb * y * inv_z
+    c2 = -ja * (x - obs.baseline) * inv_z
+    w0c0, w1c1, w2c2 = w0 * c0, w1 * c1, w2 * c2
+    m = len(x)
+    A = np.empty((3, 3, m))
+    A[0, 0] = ja * ja * (w0 + w2)
+    A[0, 1] = A[1, 0] = 0.0
+    A[0, 2] = A[2, 0] = ja * (w0c0 + w2 * c2)
+    A[1, 1] = jb * jb * w1
+    A[1, 2] = A[2, 1] = jb * w1c1
+    A[2, 2] = w0c0 * c0 + w1c1 * c1 + w2c2 * c2
+    r0, r1, r2 = r
+    b = np.empty((3, m))
+    b[0] = ja * (w0 * r0 + w2 * r2)
+    b[1] = jb * w1 * r1
+    b[2] = w0c0 * r0 + w1c1 * r1 + w2c2 * r2
+    B = np.einsum("ilm,ljm->ijm", A, Rm)
+    Hpp = st.pt_sum(np.einsum("lim,ljm->ijm", Rm, B).reshape(9, m)).reshape(3, 3, -1)
+    gp = st.pt_sum(np.einsum("lim,lm->im", Rm, b))
+    if st.n_c == 0:
+        return None, None, None, Hpp, gp
+    x, y, z = X_cam
+    rows = np.empty((33, m))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6): summed per camera in one pass
+    rows[:9] = A.reshape(9, m)
+    _cross_rows(x, y, z, A, rows[9:18].reshape(3, 3, m))
+    C = rows[9:18].reshape(3, 3, m)
+    D = rows[18:27].reshape(3, 3, m)  # -C [X]_x: column 0 = C2 y - C1 z, 1 = C0 z - C2 x, 2 = C1 x - C0 y
+    np.subtract(C[:, 2] * y, C[:, 1] * z, out=D[:, 0])
+    np.subtract(C[:, 0] * z, C[:, 2] * x, out=D[:, 1])
+    np.subtract(C[:, 1] * x, C[:, 0] * y, out=D[:, 2])
+    rows[27:30] = b
+    _cross_rows(x, y, z, b, rows[30:33])
+    sums = st.cam_sum(rows)
+    Hcc = np.empty((st.n_c, 6, 6))
+    Hcc[:, :3, :3] = sums[:, :9].reshape(-1, 3, 3)
+    Hcc[:, 3:, :3] = sums[:, 9:18].reshape(-1, 3, 3)
+    Hcc[:, :3, 3:] = np.transpose(Hcc[:, 3:, :3], (0, 2, 1))
+    Hcc[:, 3:, 3:] = sums[:, 18:27].reshape(-1, 3, 3)
+    gc = sums[:, 27:33].reshape(-1)
+    Hcp = np.empty((6, 3, m))
+    Hcp[:3] = B
+    _cross_rows(x, y, z, B, Hcp[3:])
+    return Hcc, gc, st.coupling(Hcp), Hpp, gp
+
+
+def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
+    """Solve the Marquardt-damped normal equations by the Schur complement on the cameras.
+
+    Returns ``dc (n_c, 6)`` and ``dp (3, P)``.
+    """
+    n_c = st.n_c
+    Hpp_d = Hpp.copy()
+    # Marquardt damping plus an isotropic share (1 % of the mean diagonal): a monocular point seen once
+    # (or with tiny parallax) has a near-null depth direction that diag(H) alone would leave undamped
+    iso = 0.01 * (Hpp[0, 0] + Hpp[1, 1] + Hpp[2, 2]) / 3.0
+    for i in range(3):
+        Hpp_d[i, i] += lam * (np.maximum(Hpp[i, i], 1e-9) + iso)
+    V = _inv3(Hpp_d)
+    if n_c == 0:
+        return np.zeros((0, 6)), np.einsum("ijp,jp->ip", V, gp)
+    Y = st.times_blockdiag(W, V)
+    S = -st.schur_product(Y, W)
+    bc = gc - Y @ st.to_cols(gp)
+    Hcc_d = Hcc.copy()
+    Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
+    idx = np.arange(n_c)
+    S4 = S.reshape(n_c, 6, n_c, 6)
+    S4[idx, :, idx, :] += Hcc_d
+    try:
+        dc = scipy.linalg.solve(S, bc, assume_a="pos", check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        dc = np.linalg.lstsq(S, bc, rcond=None)[0]
+    dp = np.einsum("ijp,jp->ip", V, gp - st.from_cols(st.wt_dot(W, dc)))
+    return dc.reshape(-1, 6), dp
+
+
+def solve(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray, cam_var: np.ndarray,
+          obs: Observations, intr: Intrinsics, active: np.ndarray, huber: np.ndarray | None,
+          max_iterations: int, lambda_initial: float = 1e-4, relative_tolerance: float = 1e-7,
+          min_depth: float = 1e-3) -> LMResult:
+    """Run LM on cameras with ``cam_var >= 0`` (their variable index) and all points.
+
+    ``active (M,)`` selects the observations used; ``huber (M,)`` the per-observation Huber threshold
+    on ``sqrt(chi2)`` (``None``: plain least squares). Cameras with ``cam_var < 0`` stay fixed.
+    """
+    with _blas_single_thread():
+        return _solve(R_cam_world, t_cam_world, X_world, cam_var, obs, intr, active, huber, max_iterations,
+                      lambda_initial, relative_tolerance, min_depth)
+
+
+def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_initial, relative_tolerance, min_depth):
+    R, t, X = R.copy(), t.copy(), X.copy()
+    order = np.argsort(obs.cam, kind="stable")  # camera-sorted observations: camera sums are contiguous
+    obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order], obs.info[order])
+    active = active[order]
+    huber = None if huber is None else huber[order]
+    n_c = int(cam_var.max(initial=-1)) + 1
+    st = _Structure(obs, cam_var, n_c, len(X))
+    var_rows = np.flatnonzero(cam_var >= 0)
+    act = active.astype(float) * obs.info
+    w_rows = np.stack([act, act, act * obs.stereo])
+    lam = lambda_initial
+    r, chi2, X_cam, Rm = _predict(R, t, X, obs, intr, min_depth)
+    cost = _robust_cost(np.where(np.isfinite(chi2), chi2, 0.0), active, huber)
+    initial_cost = cost
+    iterations = 0
+    for _ in range(max_iterations):
+        iterations += 1
+        Hcc, gc, W, Hpp, gp = _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st)
+        while True:
+            dc, dp = _solve_damped(Hcc, gc, W, Hpp, gp, lam, st)
+            R_new, t_new = R.copy(), t.copy()
+            dR = so3_exp(dc[cam_var[var_rows], 3:])
+            R_new[var_rows] = dR @ R[var_rows]
+            t_new[var_rows] = np.einsum("kij,kj->ki", dR, t[var_rows]) + dc[cam_var[var_rows], :3]
+            X_new = X + dp.T
+            r_new, chi2_new, X_cam_new, Rm_new = _predict(R_new, t_new, X_new, obs, intr, min_depth)
+            # a point pushed behind a camera must not look like a cost decrease
+            c_eval = np.where(np.isfinite(chi2_new), chi2_new, 1e6 + 10.0 * np.where(np.isfinite(chi2), chi2, 0.0))
+            new_cost = _robust_cost(c_eval, active, huber)
+            if new_cost < cost:
+                break
+            lam *= 10.0
+            if lam > 1e10:
+                LOG.debug("LM: damping exhausted after %d iterations (cost %.6g)", iterations, cost)
+                return LMResult(R, t, X, iterations, initial_cost, cost)
+        decrease = cost - new_cost
+        LOG.debug("LM iteration %d: cost %.6g -> %.6g (lambda %.1e)", iterations, cost, new_cost, lam)
+        R, t, X, r, chi2, X_cam, Rm, cost = R_new, t_new, X_new, r_new, chi2_new, X_cam_new, Rm_new, new_cost
+        lam = max(lam / 10.0, 1e-12)
+        if decrease <= relative_tolerance * max(cost + decrease, 1e-12):
+            break
+    return LMResult(R, t, X, iterations, initial_cost, cost)

@@ -1,0 +1,214 @@
+"""Benchmark results: ``results.json`` (one row per run and repeat), ``results.md`` (median and
+min-max spread per run), and PNG plots of ATE and frames per second per run.
+
+Statistics per run use the repeats that succeeded and report the median with the min-max range;
+a metric missing from every repeat (no ground truth) is shown as ``-``.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import math
+import platform
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from vslam.errors import VslamError
+
+#: metrics summarized per run: (row key, column title, number format)
+METRICS = (
+    ("ate_rmse", "ATE RMSE [m]", "{:.4f}"),
+    ("rpe_trans_rmse", "RPE trans RMSE [m]", "{:.4f}"),
+    ("fps", "frames/s", "{:.1f}"),
+    ("realtime_factor", "x real time", "{:.2f}"),
+    ("wall_s", "wall [s]", "{:.1f}"),
+)
+
+PLOTS = (("ate_rmse", "ATE RMSE [m]", "ate.png"), ("fps", "frames per second", "fps.png"))
+
+
+def _finite(values: Sequence[Any]) -> np.ndarray:
+    out = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    return np.asarray(out, dtype=float)
+
+
+def summarize(rows: Sequence[dict]) -> list[dict]:
+    """Per run name (in first-seen order): repeats, successes, and for every metric in
+    :data:`METRICS` (plus ``tracked_fraction``) the ``median``, ``min`` and ``max`` over successful
+    repeats (None when no repeat has it)."""
+    order: list[str] = []
+    by_name: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["name"] not in by_name:
+            order.append(r["name"])
+            by_name[r["name"]] = []
+        by_name[r["name"]].append(r)
+    out = []
+    for name in order:
+        group = by_name[name]
+        ok = [r for r in group if r.get("status", "ok") == "ok" and not r.get("error")]
+        s: dict[str, Any] = {
+            "name": name,
+            "sensor": next((r.get("sensor") for r in group if r.get("sensor")), None),
+            "system": group[0].get("system", "vslam"),
+            "repeats": len(group),
+            "ok": len(ok),
+            "frames": next((r.get("frames") for r in ok if r.get("frames") is not None), None),
+            "errors": sorted({str(r["error"]) for r in group if r.get("error")}),
+        }
+        tracked = [r["tracked"] / r["frames"] for r in ok if r.get("frames") and r.get("tracked") is not None]
+        metrics = {key: [r.get(key) for r in ok] for key, _, _ in METRICS}
+        metrics["tracked_fraction"] = tracked
+        for key, values in metrics.items():
+            v = _finite(values)
+            s[key] = None if len(v) == 0 else {
+                "median": float(np.median(v)), "min": float(v.min()), "max": float(v.max()), "n": int(len(v)),
+            }
+        out.append(s)
+    return out
+
+
+def _fmt(stat: dict | None, fmt: str) -> str:
+    if stat is None:
+        return "-"
+    med = fmt.format(stat["median"])
+    if stat["n"] == 1 or stat["min"] == stat["max"]:
+        return med
+    return f"{med} ({fmt.format(stat['min'])}–{fmt.format(stat['max'])})"
+
+
+def markdown_table(summary: Sequence[dict]) -> str:
+    """The per-run table: median (min–max) of every metric over the successful repeats."""
+    head = ["run", "sensor", "ok/repeats", "frames", "tracked"] + [title for _, title, _ in METRICS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in summary:
+        tf = s.get("tracked_fraction")
+        cells = [s["name"], s.get("sensor") or "-", f"{s['ok']}/{s['repeats']}",
+                 str(s["frames"]) if s.get("frames") is not None else "-",
+                 _fmt({**tf, "median": 100 * tf["median"], "min": 100 * tf["min"], "max": 100 * tf["max"]},
+                      "{:.0f}") + " %" if tf else "-"]
+        cells += [_fmt(s.get(key), fmt) for key, _, fmt in METRICS]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def results_markdown(rows: Sequence[dict], meta: dict | None = None) -> str:
+    """The whole ``results.md``: header, the table, failures, and how the numbers were made."""
+    meta = meta or {}
+    summary = summarize(rows)
+    parts = ["# Benchmark results\n"]
+    if meta.get("description"):
+        parts.append(meta["description"].strip() + "\n")
+    workers = meta.get("workers")
+    executor = None
+    if meta.get("executor"):
+        executor = f"executor {meta['executor']}" + (f" ({_plural(workers, 'worker')})" if workers else "")
+    info = [f"spec `{meta['spec']}`" if meta.get("spec") else None, executor,
+            f"created {meta['created']}" if meta.get("created") else None,
+            f"host {meta['host']}" if meta.get("host") else None]
+    info_s = ", ".join(i for i in info if i)
+    if info_s:
+        parts.append(info_s + ".\n")
+    parts.append("Median over successful repeats, (min–max) when they differ. `x real time` is frames/s "
+                 "divided by the sensor's frame rate over the frames used; `tracked` is the share of "
+                 "frames with a pose.\n")
+    parts.append(markdown_table(summary))
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        parts.append("\n## Failed runs\n")
+        for r in failed:
+            err = str(r["error"]).replace("\n", " ")
+            parts.append(f"- `{r['name']}` repeat {r['repeat']}: {err} (`{r.get('output', '')}`)")
+        parts.append("")
+    return "\n".join(parts) + "\n"
+
+
+def plot_per_run(rows: Sequence[dict], key: str, label: str, dpi: int = 100) -> bytes:
+    """PNG bytes: one line per run, every successful repeat as a dot and the median as a bar."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    summary = summarize(rows)
+    names = [s["name"] for s in summary]
+    fig = Figure(figsize=(7.0, 0.45 * max(len(names), 2) + 1.2), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for y, s in enumerate(summary):
+        vals = _finite([r.get(key) for r in rows
+                        if r["name"] == s["name"] and r.get("status", "ok") == "ok" and not r.get("error")])
+        if len(vals):
+            ax.barh(y, float(np.median(vals)), color="#9ecae1", height=0.6)
+            ax.plot(vals, np.full(len(vals), y), "o", color="#08519c", ms=4)
+        else:
+            ax.text(0, y, "  no value", va="center", fontsize=8, color="#a50f15")
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.set_ylim(len(names) - 0.5, -0.5)
+    ax.set_xlabel(label)
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return buf.getvalue()
+
+
+def write_results(rows: Sequence[dict], output: str | Path, meta: dict | None = None,
+                  plots: bool = True) -> dict[str, Path]:
+    """Write ``results.json``, ``results.md`` and (with ``plots``) ``ate.png`` / ``fps.png`` into
+    ``output``; returns ``{kind: path}``."""
+    output = Path(output)
+    output.mkdir(parents=True, exist_ok=True)
+    meta = dict(meta or {})
+    meta.setdefault("created", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"))
+    meta.setdefault("host", f"{platform.node()} ({platform.machine()}, {_cpu_count()} CPUs)")
+    files = {}
+    data = {"rows": list(rows), "summary": summarize(rows), "meta": meta}
+    files["json"] = output / "results.json"
+    files["json"].write_text(json.dumps(data, indent=2, default=_json_default))
+    files["md"] = output / "results.md"
+    files["md"].write_text(results_markdown(rows, meta))
+    if plots:
+        for key, label, fname in PLOTS:
+            files[key] = output / fname
+            files[key].write_bytes(plot_per_run(rows, key, label))
+    return files
+
+
+def read_results(folder_or_file: str | Path) -> dict:
+    """Load ``results.json`` (from its folder or the file itself)."""
+    path = Path(folder_or_file)
+    if path.is_dir():
+        path = path / "results.json"
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise VslamError(f"{path}: no results.json here; run `vslam bench` first") from None
+    except ValueError as exc:
+        raise VslamError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("rows"), list):
+        raise VslamError(f"{path}: expected {{\"rows\": [...]}}; is this a vslam bench folder?")
+    return data
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _cpu_count() -> int:
+    import os
+
+    return os.cpu_count() or 1
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    if isinstance(obj, (np.ndarray,)):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serializable: {type(obj)}")
