@@ -1,0 +1,93 @@
+"""The high-level Python API: open a sequence, run SLAM on it, evaluate.
+
+Example::
+
+    from vslam.api import run_path
+    result = run_path("path/to/tum_sequence", "out/", sensor="rgbd")
+    print(result.stats["ate_rmse"])
+
+Streaming use, frame by frame::
+
+    from vslam.api import open_dataset, System, Config
+    ds = open_dataset("path/to/sequence", sensor="rgbd")
+    system = System(Config(), ds.camera, sensor="rgbd")
+    for frame in ds:
+        result = system.track(frame)       # result.T_world_cam is None when lost
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from vslam.config import load_config
+from vslam.errors import DatasetError
+
+log = logging.getLogger(__name__)
+
+
+def choose_sensor(available: tuple[str, ...] | list[str], requested: str | None) -> str:
+    """The requested sensor if the data supports it; by default RGB-D, else stereo, else mono."""
+    if requested is not None:
+        if requested not in available:
+            raise DatasetError(
+                f"this sequence provides {', '.join(available)}; it cannot be run as {requested!r}"
+            )
+        return requested
+    for s in ("rgbd", "stereo", "mono"):
+        if s in available:
+            return s
+    raise DatasetError("this sequence provides no usable sensor")
+
+
+def run_path(
+    path: str | Path,
+    output: str | Path | None,
+    sensor: str | None = None,
+    dataset: str | None = None,
+    config: str | Path | object | None = None,
+    overrides: list[str] | tuple[str, ...] = (),
+    max_frames: int | None = None,
+    start_frame: int = 0,
+    progress: bool = False,
+    viz: str | None = None,
+):
+    """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
+
+    ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
+    Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
+    """
+    from vslam.config import Config
+    from vslam.datasets import open_dataset
+    from vslam.runner import run_sequence
+    from vslam.system import System
+
+    if config is None or isinstance(config, (str, Path)):
+        cfg = load_config(Config, config, overrides)
+    else:
+        cfg = load_config(Config, None, overrides) if overrides else config
+    probe = open_dataset(path, kind=dataset)
+    sensor = choose_sensor(probe.sensors, sensor)
+    ds = open_dataset(path, kind=dataset, sensor=sensor)
+    n = len(ds)
+    if start_frame < 0 or start_frame >= n:
+        raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
+    stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
+    system = System(cfg, ds.camera, sensor=sensor)
+    gt = ds.ground_truth()
+    log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
+    viewer = on_frame = None
+    if viz:
+        from vslam.viz.rerun_viewer import RerunViewer
+
+        viewer = RerunViewer.from_spec(viz, system=system)
+        on_frame = viewer.bind(system)
+    try:
+        return run_sequence(
+            system, ds.frames(start_frame, stop), total=stop - start_frame, output_dir=output, config=cfg,
+            ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
+            extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
+                         "start_frame": start_frame},
+        )
+    finally:
+        if viewer is not None:
+            viewer.close()

@@ -1,0 +1,473 @@
+"""Local mapping: windowed bundle adjustment after each keyframe, culling, and a final global BA.
+
+After ORB-SLAM's LocalMapping thread (Mur-Artal et al., T-RO 2015, Sec. VI; ORB-SLAM2, T-RO 2017,
+Sec. VI-B):
+
+1. **Window.** The new keyframe, the ``window_size`` most recent keyframes of its map segment and
+   its ``covisible_keyframes`` strongest covisibility neighbours (links to non-adjacent keyframes)
+   are optimized, with every live map point they observe.
+2. **Gauge.** Keyframes outside the window that observe those points enter the problem with their
+   poses held constant; the first keyframe of the segment is always constant. Monocular problems
+   hold at least two keyframes constant so the scale is fixed too.
+3. **Solve** with :func:`vslam.backend.local_bundle_adjustment` (robust pass, chi-square outlier
+   removal, refinement) and write poses (``kf.T_world_cam``) and points back into the map.
+4. **Cull.** Observations failing the chi-square test are removed (``kf.point_ids[i] = -1``);
+   points left without observations die; recent points that too few keyframes re-observed die
+   (ORB-SLAM's MapPointCulling); optionally redundant keyframes (>= ``redundant_ratio`` of their points
+   seen by >= 3 other keyframes, ORB-SLAM's KeyFrameCulling) are flagged ``bad``. A culled keyframe
+   stays in ``map.keyframes`` (frames reference it) and its pose follows its parent keyframe (the
+   strongest covisible one) rigidly from then on.
+
+Modes: ``deterministic`` queues keyframes and processes them inline when :meth:`LocalMapper.after_frame`
+is called (the same result every run); ``realtime`` processes them in a background thread, taking
+``lock`` only to snapshot the problem and to write the result back, so tracking (which holds the
+same lock while it touches the map) never waits for a solve. When keyframes arrive faster than
+BAs finish, only the newest waiting keyframe is optimized (its window covers the others).
+
+Example:
+    >>> mapper = LocalMapper(system.map, camera, "rgbd", BackendConfig())     # doctest: +SKIP
+    >>> system.add_keyframe_listener(mapper.on_keyframe)                       # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bundle_adjustment
+from vslam.backend.config import GlobalBAConfig, LocalBAConfig
+from vslam.backend.problem import BAProblem, BAResult
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.keyframe import KeyFrame
+from vslam.map.map import Map
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LocalMappingConfig:
+    """What the mapper reads from :class:`vslam.config.BackendConfig` (see its docstring)."""
+
+    local_ba: bool = True
+    realtime: bool = False
+    local: LocalBAConfig = field(default_factory=LocalBAConfig)
+    global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)
+    covisible_keyframes: int = 10
+    max_fixed_keyframes: int = 20
+    cull_min_observations: int = 2
+    cull_keyframes: bool = False
+    redundant_ratio: float = 0.9
+    stereo_far_baselines: float = 35.0
+
+    @classmethod
+    def from_backend(cls, backend: Any) -> "LocalMappingConfig":
+        """Build from a :class:`vslam.config.BackendConfig` (missing fields keep their defaults)."""
+        names = ("covisible_keyframes", "max_fixed_keyframes", "cull_min_observations", "cull_keyframes",
+                 "redundant_ratio", "stereo_far_baselines")
+        kw = {n: getattr(backend, n) for n in names if hasattr(backend, n)}
+        return cls(local_ba=backend.local_ba, realtime=backend.mode == "realtime", local=backend.local,
+                   global_ba=backend.global_ba, **kw)
+
+
+@dataclass
+class _Context:
+    """What :meth:`LocalMapper._apply` needs besides the problem: keypoint index of each observation,
+    which keyframes were constant, and the store size (to detect a compaction in between)."""
+
+    obs_idx: np.ndarray
+    fixed: np.ndarray
+    n_rows: int
+    new_kf: int
+
+
+def _segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
+    return [k for k in map_.keyframes.values() if k.segment == segment and not k.bad]
+
+
+class LocalMapper:
+    """Windowed BA + culling after each keyframe, global BA on demand (see the module docstring).
+
+    Args:
+        map_: the shared map.
+        camera: intrinsics (with ``baseline`` for stereo).
+        sensor: ``mono``, ``stereo`` or ``rgbd``.
+        config: a :class:`LocalMappingConfig` or a :class:`vslam.config.BackendConfig`.
+        scale_factor: feature pyramid scale; an observation at octave ``o`` has sigma ``scale_factor ** o`` px.
+        lock: the map lock shared with tracking (realtime mode); a private one when None.
+    """
+
+    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: Any = None,
+                 scale_factor: float = 1.2, lock: threading.RLock | None = None) -> None:
+        if config is None:
+            config = LocalMappingConfig()
+        elif not isinstance(config, LocalMappingConfig):
+            config = LocalMappingConfig.from_backend(config)
+        self.config = config
+        self.map = map_
+        self.camera = camera
+        self.sensor = sensor
+        self.scale_factor = float(scale_factor)
+        self.lock = lock if lock is not None else threading.RLock()
+        self._pending: list[int] = []
+        self._queue: queue.Queue = queue.Queue()
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self._times: list[float] = []
+        self._culled_upto: dict[int, int] = {}
+        self.counts = {"local_ba_calls": 0, "local_ba_skipped": 0, "outlier_observations": 0,
+                       "culled_points": 0, "culled_keyframes": 0, "failed": 0}
+        self.global_ba_result: dict | None = None
+
+    # ------------------------------------------------------------------ feeding
+    def on_keyframe(self, kf: KeyFrame) -> None:
+        """Keyframe listener: queue ``kf`` for local mapping."""
+        if not self.config.local_ba:
+            return
+        if self.config.realtime:
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._worker, name="vslam-local-mapping", daemon=True)
+                self._thread.start()
+            self._queue.put(kf.id)
+        else:
+            self._pending.append(kf.id)
+
+    def after_frame(self) -> None:
+        """Deterministic mode: process the keyframes queued while tracking this frame (inline)."""
+        while self._pending:
+            self.process(self._pending.pop(0))
+
+    def _worker(self) -> None:
+        while True:
+            kf_id = self._queue.get()
+            if kf_id is None:
+                return
+            # keyframes that piled up during the last BA: optimize the newest (its window holds them)
+            while True:
+                try:
+                    nxt = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if nxt is None:
+                    self._queue.put(None)
+                    break
+                self.counts["local_ba_skipped"] += 1
+                kf_id = nxt
+            try:
+                self.process(kf_id)
+            except Exception:  # a worker must never die silently
+                self.counts["failed"] += 1
+                LOG.exception("local mapping failed on keyframe %d", kf_id)
+
+    def finish(self) -> None:
+        """Flush: process everything queued (deterministic) or join the worker (realtime)."""
+        self.after_frame()
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+
+    # ------------------------------------------------------------------ one local BA
+    def process(self, kf_id: int) -> BAResult | None:
+        """Windowed BA around keyframe ``kf_id``, write-back and culling."""
+        t0 = time.perf_counter()
+        with self.lock:
+            built = self._build_local(kf_id)
+        if built is None:
+            return None
+        problem, ctx = built
+        try:
+            result = local_bundle_adjustment(problem, self.config.local)
+        except Exception as exc:  # GeometryError or a singular system: keep the map as it is
+            self.counts["failed"] += 1
+            LOG.warning("local BA on keyframe %d failed: %s", kf_id, exc)
+            return None
+        with self.lock:
+            self._apply(problem, result, ctx)
+            self._cull_points(kf_id)
+            if self.config.cull_keyframes:
+                self._cull_keyframes(kf_id)
+            self._update_bad_keyframes()
+        self._times.append(time.perf_counter() - t0)
+        self.counts["local_ba_calls"] += 1
+        LOG.debug("local BA kf %d: %d kfs (%d fixed), %d pts, rms %.2f -> %.2f px, %.0f ms", kf_id,
+                  problem.num_keyframes, len(ctx.fixed), problem.num_points, result.initial_rms_px,
+                  result.final_rms_px, 1e3 * result.time_s)
+        return result
+
+    def _window(self, kf: KeyFrame) -> tuple[list[int], list[int]]:
+        """``(optimized keyframe ids, constant keyframe ids)`` of the local BA around ``kf``."""
+        cfg = self.config
+        seg = _segment_keyframes(self.map, kf.segment)
+        good = {k.id for k in seg}
+        first = min(good)
+        recent = sorted(good)[-cfg.local.window_size:]
+        cov = [k for k in self.map.covisible(kf.id) if k in good][: cfg.covisible_keyframes]
+        window = sorted(set(recent) | set(cov) | {kf.id})
+        # constant: covisible keyframes outside the window (they observe window points), strongest first
+        weight: dict[int, int] = {}
+        for k in window:
+            for o, w in self.map.covisibility.get(k, {}).items():
+                if o in good and o not in window:
+                    weight[o] = weight.get(o, 0) + w
+        fixed = sorted(weight, key=lambda o: (-weight[o], o))[: cfg.max_fixed_keyframes]
+        if first in window and len(window) > 1:  # the segment's origin never moves
+            window.remove(first)
+            fixed.append(first)
+        need = 2 if self.sensor == "mono" else 1
+        while len(fixed) < need and len(window) > 1:
+            fixed.append(window.pop(0))
+        return window, sorted(fixed)
+
+    def _build_local(self, kf_id: int) -> tuple[BAProblem, _Context] | None:
+        kf = self.map.keyframes.get(kf_id)
+        if kf is None or kf.bad:
+            return None
+        window, fixed = self._window(kf)
+        if not window:
+            return None
+        pts = self.map.local_point_ids(window)
+        return self._problem(window, fixed, pts, kf_id)
+
+    def _problem(self, var_ids: list[int], fixed_ids: list[int], pts: np.ndarray,
+                 new_kf: int) -> tuple[BAProblem, _Context] | None:
+        """Gather the observations of points ``pts`` in the given keyframes (vectorized per keyframe)."""
+        store = self.map.points
+        n_rows = len(store)
+        if len(pts) == 0:
+            return None
+        member = np.zeros(n_rows + 1, bool)
+        member[pts] = True
+        kf_ids = list(var_ids) + list(fixed_ids)
+        cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
+        for kid in kf_ids:
+            k = self.map.keyframes[kid]
+            pid = k.point_ids
+            sel = np.flatnonzero(member[np.where(pid >= 0, pid, n_rows)])
+            if len(sel) == 0:
+                continue
+            _, first = np.unique(pid[sel], return_index=True)  # one observation per point and keyframe
+            sel = sel[np.sort(first)]
+            cols["kf"].append(np.full(len(sel), kid, np.int64))
+            cols["pt"].append(pid[sel])
+            cols["idx"].append(sel)
+            cols["uv"].append(k.uv_undist[sel])
+            cols["sig"].append(np.power(self.scale_factor, k.octave[sel].astype(float)))
+            nan = np.full(len(sel), np.nan)
+            if self.sensor == "stereo" and k.u_right is not None:
+                # keep the measured disparity, expressed at the undistorted left column
+                disp = k.uv[sel, 0] - k.u_right[sel]
+                ok = np.isfinite(disp) & (disp > 0) & np.isfinite(k.depth[sel])
+                if self.config.stereo_far_baselines > 0:  # far points: the disparity is too weak, mono only
+                    ok &= k.depth[sel] < self.config.stereo_far_baselines * float(self.camera.baseline)
+                cols["ur"].append(np.where(ok, k.uv_undist[sel, 0] - disp, np.nan))
+                cols["d"].append(nan)
+            elif self.sensor == "rgbd":
+                d = k.depth[sel]
+                cols["ur"].append(nan)
+                cols["d"].append(np.where(np.isfinite(d) & (d > 0), d, np.nan))
+            else:
+                cols["ur"].append(nan)
+                cols["d"].append(nan)
+        if not cols["kf"]:
+            return None
+        c = {k: np.concatenate(v) for k, v in cols.items()}
+        # a point needs two observations, or one with depth / disparity, to be determined
+        pt_ids, inv = np.unique(c["pt"], return_inverse=True)
+        n_obs = np.bincount(inv, minlength=len(pt_ids))
+        has3 = np.bincount(inv, weights=(np.isfinite(c["ur"]) | np.isfinite(c["d"])).astype(float),
+                           minlength=len(pt_ids)) > 0
+        ok_pt = (n_obs >= 2) | has3
+        keep = ok_pt[inv]
+        c = {k: v[keep] for k, v in c.items()}
+        pt_ids = pt_ids[ok_pt]
+        used_kf = [k for k in kf_ids if np.any(c["kf"] == k)]
+        var_used = [k for k in var_ids if k in used_kf]
+        if not var_used or len(pt_ids) == 0:
+            return None
+        fixed_used = [k for k in fixed_ids if k in used_kf]
+        problem = BAProblem(
+            camera=self.camera, kf_ids=np.array(used_kf, np.int64),
+            T_world_cam=np.stack([self.map.keyframes[k].T_world_cam for k in used_kf]),
+            pt_ids=pt_ids, X_world=store.position[pt_ids], obs_kf=c["kf"], obs_pt=c["pt"], obs_uv=c["uv"],
+            obs_sigma=c["sig"], obs_u_right=c["ur"], obs_depth=c["d"],
+            fixed_kf_ids=np.array(fixed_used, np.int64),
+        )
+        return problem, _Context(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
+                                 new_kf=new_kf)
+
+    # ------------------------------------------------------------------ write-back and culling
+    def _apply(self, problem: BAProblem, result: BAResult, ctx: _Context) -> None:
+        """Poses, points and outlier observations back into the map (under the lock)."""
+        store = self.map.points
+        if len(store) < ctx.n_rows:
+            LOG.info("map compacted during local BA: result dropped")
+            return
+        fixed = np.isin(result.kf_ids, ctx.fixed)
+        for kid, T, f in zip(result.kf_ids.tolist(), result.T_world_cam, fixed):
+            kf = self.map.keyframes.get(kid)
+            if kf is not None and not f and np.all(np.isfinite(T)):
+                kf.T_world_cam = T.copy()
+        alive = store.alive[result.pt_ids]
+        good_X = alive & np.all(np.isfinite(result.X_world), axis=1)
+        store.position[result.pt_ids[good_X]] = result.X_world[good_X]
+        out = ~result.inlier_mask
+        if not np.any(out):
+            return
+        o_kf, o_pt, o_idx = problem.obs_kf[out], problem.obs_pt[out], ctx.obs_idx[out]
+        removed = []
+        for kid in np.unique(o_kf).tolist():
+            kf = self.map.keyframes.get(kid)
+            if kf is None:
+                continue
+            m = o_kf == kid
+            idx, pid = o_idx[m], o_pt[m]
+            still = kf.point_ids[idx] == pid  # realtime: tracking may have changed it meanwhile
+            kf.point_ids[idx[still]] = -1
+            removed.append(pid[still])
+        if removed:
+            r = np.concatenate(removed)
+            np.subtract.at(store.n_obs, r, 1)
+            self.counts["outlier_observations"] += len(r)
+
+    def _cull_points(self, kf_id: int) -> None:
+        """Points without observations die; so do recent points (created 3 keyframes ago or less, in
+        this segment) that fewer than ``cull_min_observations`` keyframes observe (ORB-SLAM2
+        MapPointCulling, with the keyframe count as the age)."""
+        store = self.map.points
+        n = len(store)
+        if n == 0:
+            return
+        alive = store.alive[:n]
+        dead = alive & (store.n_obs[:n] <= 0)
+        k_min = self.config.cull_min_observations
+        kf = self.map.keyframes.get(kf_id)
+        if k_min > 1 and kf is not None:
+            seg_ids = sorted(k.id for k in _segment_keyframes(self.map, kf.segment))
+            if len(seg_ids) >= 3:
+                upto = seg_ids[-3]  # points born two keyframes ago had their chance to be re-observed
+                first = store.first_kf[:n]
+                lo = self._culled_upto.get(kf.segment, -1)
+                recent = alive & (first > lo) & (first <= upto)
+                dead |= recent & (store.n_obs[:n] < k_min)
+                self._culled_upto[kf.segment] = upto
+        if dead.any():
+            store.alive[:n][dead] = False
+            self.counts["culled_points"] += int(dead.sum())
+
+    def _cull_keyframes(self, kf_id: int) -> None:
+        """ORB-SLAM KeyFrameCulling over the covisible keyframes of ``kf_id``: a keyframe whose
+        points are >= ``redundant_ratio`` observed by >= 3 other keyframes is flagged bad."""
+        store = self.map.points
+        kf = self.map.keyframes.get(kf_id)
+        if kf is None:
+            return
+        seg = _segment_keyframes(self.map, kf.segment)
+        if len(seg) < 4:
+            return
+        first = min(k.id for k in seg)
+        recent = {k.id for k in sorted(seg, key=lambda k: k.id)[-3:]}
+        for cid in self.map.covisible(kf_id):
+            c = self.map.keyframes.get(cid)
+            if c is None or c.bad or c.id == first or c.id in recent or c.segment != kf.segment:
+                continue
+            ids = np.unique(c.observed_ids())
+            ids = ids[store.alive[ids]]
+            if len(ids) == 0:
+                continue
+            seen = np.zeros(len(ids), np.int64)
+            for oid in self.map.covisibility.get(cid, {}):
+                o = self.map.keyframes.get(oid)
+                if o is None or o.bad or o.id == cid:
+                    continue
+                seen += np.isin(ids, o.point_ids)
+            if np.mean(seen >= 3) >= self.config.redundant_ratio:
+                self._set_bad(c)
+
+    def _set_bad(self, kf: KeyFrame) -> None:
+        links = self.map.covisibility.get(kf.id, {})
+        parents = [o for o in sorted(links, key=lambda o: (-links[o], o))
+                   if o in self.map.keyframes and not self.map.keyframes[o].bad]
+        if not parents:
+            return
+        parent = self.map.keyframes[parents[0]]
+        kf.extra["parent"] = parent.id
+        kf.extra["T_parent_kf"] = np.linalg.inv(parent.T_world_cam) @ kf.T_world_cam
+        kf.bad = True
+        for o in list(links):
+            self.map.covisibility.get(o, {}).pop(kf.id, None)
+        self.map.covisibility[kf.id] = {}
+        ids = kf.observed_ids()
+        np.subtract.at(self.map.points.n_obs, ids, 1)
+        self.counts["culled_keyframes"] += 1
+
+    def _update_bad_keyframes(self) -> None:
+        """Culled keyframes follow their parent rigidly (so frames referencing them stay placed)."""
+        for kf in self.map.keyframes.values():
+            if not kf.bad or "parent" not in kf.extra:
+                continue
+            chain, p = [], kf
+            while p.bad and "parent" in p.extra and len(chain) < 100:
+                chain.append(p.extra["T_parent_kf"])
+                p = self.map.keyframes[p.extra["parent"]]
+            T = p.T_world_cam
+            for T_rel in reversed(chain):
+                T = T @ T_rel
+            kf.T_world_cam = T
+
+    # ------------------------------------------------------------------ global BA
+    def global_ba(self) -> BAResult | None:
+        """Full BA over every good keyframe and live point; each segment's first keyframe (two for
+        monocular, also fixing the scale) is constant."""
+        with self.lock:
+            kfs = [k for k in self.map.keyframes.values() if not k.bad]
+            if len(kfs) < 2:
+                return None
+            fixed: list[int] = []
+            for seg in sorted({k.segment for k in kfs}):
+                ids = sorted(k.id for k in kfs if k.segment == seg)
+                fixed += ids[: (2 if self.sensor == "mono" else 1)]
+            var = [k.id for k in sorted(kfs, key=lambda k: k.id) if k.id not in fixed]
+            pts = self.map.local_point_ids([k.id for k in kfs])
+            built = self._problem(var, fixed, pts, -1)
+            if built is None:
+                return None
+            problem, ctx = built
+            t0 = time.perf_counter()
+            try:
+                result = global_bundle_adjustment(problem, self.config.global_ba)
+            except Exception as exc:
+                LOG.warning("global BA failed: %s", exc)
+                return None
+            self._apply(problem, result, ctx)
+            self._update_bad_keyframes()
+        self.global_ba_result = {
+            "keyframes": problem.num_keyframes, "points": problem.num_points,
+            "observations": problem.num_observations, "initial_rms_px": round(result.initial_rms_px, 4),
+            "final_rms_px": round(result.final_rms_px, 4), "iterations": result.iterations,
+            "ms": round(1e3 * (time.perf_counter() - t0), 1),
+        }
+        LOG.info("global BA: %s", self.global_ba_result)
+        return result
+
+    # ------------------------------------------------------------------ stats
+    def stats(self) -> dict:
+        t = np.asarray(self._times)
+        out: dict = dict(self.counts)
+        out["mode"] = "realtime" if self.config.realtime else "deterministic"
+        out["local_ba_ms_mean"] = round(1e3 * float(t.mean()), 2) if len(t) else 0.0
+        out["local_ba_ms_median"] = round(1e3 * float(np.median(t)), 2) if len(t) else 0.0
+        out["local_ba_ms_total"] = round(1e3 * float(t.sum()), 1)
+        if self.global_ba_result is not None:
+            out["final_ba"] = self.global_ba_result
+        return out
+
+
+def null_lock() -> contextlib.AbstractContextManager:
+    """A do-nothing context manager (deterministic mode needs no map lock)."""
+    return contextlib.nullcontext()

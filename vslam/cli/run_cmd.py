@@ -1,0 +1,47 @@
+"""``vslam run PATH``: track a sequence and write trajectory, keyframes, stats and config."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "run", help="run SLAM on a sequence",
+        description="Run SLAM on a sequence (TUM, KITTI, EuRoC, 7-Scenes, image folder or video).",
+    )
+    p.add_argument("path", help="sequence folder or video file")
+    p.add_argument("--output", "-o", required=True, help="output folder")
+    p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: rgbd, else stereo, else mono")
+    p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder, video")
+    p.add_argument("--config", help="YAML file with settings")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting, e.g. --set frontend.motion=3d3d (repeatable)")
+    p.add_argument("--max-frames", type=int, help="stop after N frames")
+    p.add_argument("--start-frame", type=int, default=0, help="first frame to use")
+    p.add_argument("--viz", metavar="rerun[:FILE.rrd]",
+                   help="stream to a rerun viewer, or record to FILE.rrd (needs the viz extra)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from vslam.api import run_path
+
+    result = run_path(
+        args.path, args.output, sensor=args.sensor, dataset=args.dataset, config=args.config,
+        overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
+        progress=not args.no_progress, viz=args.viz,
+    )
+    s = result.stats
+    line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \
+           f"{s.get('keyframes', 0)} keyframes, {s.get('map_points', 0)} map points, {s['fps']:.1f} frames/s"
+    print(line)
+    if "ate_rmse" in s:
+        print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses")
+    print(f"results in {Path(args.output)}")
+    return 0

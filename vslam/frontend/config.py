@@ -1,0 +1,90 @@
+"""Configuration of the visual-odometry frontend (association, motion estimation, keyframes, map)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from vslam.errors import ConfigError
+
+ASSOCIATIONS = ("match", "track")
+MOTIONS = ("3d2d", "3d3d", "2d2d")
+SENSORS = ("mono", "stereo", "rgbd")
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """Frontend settings.
+
+    Attributes:
+        association: ``match`` (descriptors, guided by projecting the local map into the predicted
+            pose) or ``track`` (KLT optical flow from the previous frame, re-detection when tracks thin out).
+        motion: ``3d2d`` (PnP against the local map, the default), ``3d3d`` (3D-3D alignment of the
+            frame's depth/stereo points to the map; stereo and RGB-D only) or ``2d2d`` (essential matrix
+            between consecutive frames chained as ``C_n = C_{n-1} T_n``, scaled by depth for RGB-D/stereo
+            and by the relative scale of triangulated points for monocular).
+    """
+
+    association: str = "match"
+    motion: str = "3d2d"
+
+    # --- depth (RGB-D) / stereo
+    min_depth: float = 0.1  # metres
+    max_depth: float = 10.0  # metres (RGB-D)
+    stereo_max_depth_baselines: float = 60.0  # stereo points farther than this many baselines are "far"
+    stereo_max_dy: float = 1.5  # px, rectified rows must agree
+
+    # --- pose estimation
+    pnp_reproj_px: float = 3.0  # RANSAC / inlier threshold in pixels
+    pnp_iterations: int = 100
+    align_inlier_m: float = 0.03  # 3D-3D RANSAC threshold at 1 m depth (scaled with depth^2 for RGB-D noise)
+    min_inliers: int = 20  # fewer inliers than this means the frame is lost
+    essential_px: float = 1.0  # 2D-2D RANSAC threshold in pixels
+    two_view_min_parallax_deg: float = 0.3  # 2d2d: below this the reference frame is kept (translation unobservable)
+
+    # --- association
+    search_radius_px: float = 12.0  # guided matching radius around the predicted projection
+    search_radius_lost_px: float = 30.0  # wider radius when few matches were found
+    max_descriptor_distance: float = 64.0  # Hamming (ORB); float descriptors use ratio only
+    match_ratio: float = 0.9  # best/second-best ratio in guided matching
+    klt_min_tracks: int = 300  # re-detect when fewer KLT tracks survive
+    klt_window: int = 21
+    klt_levels: int = 3
+
+    # --- keyframes (ORB-SLAM style: track-quality and time based)
+    kf_max_frames: int = 20  # insert a keyframe at least every this many frames
+    kf_min_frames: int = 0
+    kf_tracked_ratio: float = 0.75  # insert when fewer than this ratio of the reference keyframe's points are tracked
+    kf_tracked_ratio_mono: float = 0.7  # the same for monocular (ORB-SLAM's thRefRatio)
+    kf_min_inliers_ratio: float = 0.0
+    kf_translation_m: float = 0.0  # insert when moved farther than this from the reference keyframe (0: off)
+
+    # --- local map
+    local_keyframes: int = 8  # covisible keyframes whose points form the local map
+    max_points_per_keyframe: int = 1000  # new points created per keyframe (depth sensors)
+    cull_min_found_ratio: float = 0.25  # cull points found in fewer than this ratio of the frames they were visible in
+    max_map_points: int = 200_000  # keep memory flat: oldest points outside the local window are dropped beyond this
+
+    # --- monocular initialization
+    init_min_matches: int = 80
+    init_min_parallax_deg: float = 1.0  # the 50th largest point parallax must exceed this (ORB-SLAM)
+    init_rotation_parallax_deg: float = 0.3  # median rotation-compensated parallax below this = pure rotation, never initializes
+    init_max_frames: int = 30  # restart the reference frame after this many frames without success
+    mono_min_parallax_deg: float = 0.5  # for triangulating new points at keyframes
+    mono_triangulation_keyframes: int = 3  # new keyframes triangulate with this many previous ones
+
+    # --- loss / recovery
+    max_lost_frames: int = 3  # after this many consecutive lost frames, re-initialize a new map segment
+
+    def __post_init__(self) -> None:
+        if self.association not in ASSOCIATIONS:
+            raise ConfigError(f"frontend.association must be one of {ASSOCIATIONS}, got {self.association!r}")
+        if self.motion not in MOTIONS:
+            raise ConfigError(f"frontend.motion must be one of {MOTIONS}, got {self.motion!r}")
+        if self.min_inliers < 6:
+            raise ConfigError(f"frontend.min_inliers must be >= 6, got {self.min_inliers}")
+
+    def check_sensor(self, sensor: str) -> None:
+        """Raise :class:`ConfigError` for a motion method the sensor cannot support."""
+        if sensor not in SENSORS:
+            raise ConfigError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+        if sensor == "mono" and self.motion == "3d3d":
+            raise ConfigError("frontend.motion=3d3d needs per-frame 3D points: use sensor stereo/rgbd, or motion 3d2d/2d2d")

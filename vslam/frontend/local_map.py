@@ -1,0 +1,153 @@
+"""The local map: which map points may be seen from a predicted pose, and guided matching.
+
+Projection with frustum, distance-range and viewing-angle tests follows ORB-SLAM's
+``SearchLocalPoints`` / ``isInFrustum`` (Mur-Artal et al. 2015, sec. V-D); everything is one
+vectorized NumPy pass over the local points.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.mappoint import MapPointStore
+
+
+def project_local_points(
+    points: MapPointStore,
+    ids: np.ndarray,
+    T_cam_world: np.ndarray,
+    camera: PinholeCamera,
+    margin: float = 0.0,
+    max_view_angle_cos: float = 0.5,
+    check_distance: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Project map points ``ids`` into a camera at ``T_cam_world``.
+
+    Returns:
+        ``(ids_visible (M,), uv (M, 2) undistorted pixels, depth (M,))`` of the points in front of the
+        camera, inside the image, within their scale-invariance distance range and seen at less than
+        60 degrees from their mean viewing direction.
+    """
+    X = points.position[ids]
+    R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
+    Xc = X @ R.T + t
+    z = Xc[:, 2]
+    ok = z > 1e-3
+    zs = np.where(ok, z, 1.0)
+    u = camera.fx * Xc[:, 0] / zs + camera.cx
+    v = camera.fy * Xc[:, 1] / zs + camera.cy
+    ok &= (u >= margin) & (u <= camera.width - 1 - margin) & (v >= margin) & (v <= camera.height - 1 - margin)
+    if check_distance:
+        centre = -R.T @ t
+        d = X - centre
+        dist = np.linalg.norm(d, axis=1)
+        ok &= (dist >= 0.8 * points.min_distance[ids]) & (dist <= 1.2 * points.max_distance[ids])
+        cosang = np.einsum("ij,ij->i", d, points.normal[ids]) / np.maximum(dist, 1e-12)
+        ok &= cosang >= max_view_angle_cos
+    return ids[ok], np.stack([u[ok], v[ok]], axis=1), z[ok]
+
+
+def descriptor_distance(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
+    """Distances between rows of broadcastable descriptor arrays ``a`` and ``b``: Hamming bits for
+    binary (``uint8``) descriptors, L2 for float descriptors. Reduces the last axis."""
+    if binary:
+        x = np.bitwise_xor(a, b)
+        if x.shape[-1] % 8 == 0:
+            x = np.ascontiguousarray(x).view(np.uint64)
+        return np.bitwise_count(x).sum(axis=-1).astype(np.float32)
+    d = a.astype(np.float32) - b.astype(np.float32)
+    return np.sqrt((d * d).sum(axis=-1))
+
+
+def guided_match(
+    proj_uv: np.ndarray,
+    map_desc: np.ndarray,
+    kp_uv: np.ndarray,
+    kp_desc: np.ndarray,
+    radius: float,
+    binary: bool = True,
+    max_distance: float | None = 64.0,
+    ratio: float = 0.9,
+    k: int = 8,
+    kp_tree: cKDTree | None = None,
+    kp_free: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Match projected map points to keypoints within ``radius`` pixels by descriptor distance.
+
+    The ``k`` nearest keypoints (in pixels) of each projection are candidates; the best descriptor
+    distance must pass ``max_distance`` and the ratio test against the second best; a keypoint
+    claimed by several map points keeps the closest one.
+
+    Returns:
+        ``(map_idx, kp_idx, distance)`` index arrays into ``proj_uv`` and ``kp_uv``.
+    """
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, np.float32))
+    if len(proj_uv) == 0 or len(kp_uv) == 0:
+        return empty
+    tree = kp_tree if kp_tree is not None else cKDTree(kp_uv)
+    k = min(k, len(kp_uv))
+    _, idx = tree.query(proj_uv, k=k, distance_upper_bound=radius)
+    idx = idx.reshape(len(proj_uv), k)
+    valid = idx < len(kp_uv)
+    idxc = np.where(valid, idx, 0)
+    if kp_free is not None:
+        valid &= kp_free[idxc]
+    dist = descriptor_distance(map_desc[:, None, :], kp_desc[idxc], binary)
+    dist[~valid] = np.inf
+    order = np.argsort(dist, axis=1)
+    rows = np.arange(len(proj_uv))
+    best = dist[rows, order[:, 0]]
+    second = dist[rows, order[:, 1]] if k > 1 else np.full(len(rows), np.inf)
+    ok = np.isfinite(best)
+    if max_distance is not None:
+        ok &= best <= max_distance
+    if ratio < 1.0:
+        ok &= (best < ratio * second) | ~np.isfinite(second)
+    m_idx = rows[ok]
+    kp_idx = idxc[m_idx, order[m_idx, 0]]
+    d = best[ok]
+    # one map point per keypoint: keep the smallest distance
+    o = np.lexsort((d, kp_idx))
+    m_idx, kp_idx, d = m_idx[o], kp_idx[o], d[o]
+    first = np.ones(len(kp_idx), dtype=bool)
+    first[1:] = kp_idx[1:] != kp_idx[:-1]
+    return m_idx[first], kp_idx[first], d[first]
+
+
+def brute_force_match(
+    desc1: np.ndarray, desc2: np.ndarray, binary: bool, ratio: float = 0.8, max_distance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-neighbour matching with Lowe's ratio test and a mutual check
+    (:func:`vslam.features.match.match_descriptors`, faiss)."""
+    if len(desc1) < 2 or len(desc2) < 2:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    from vslam.features.match import match_descriptors
+
+    i1, i2, _ = match_descriptors(desc1, desc2, binary=binary, ratio=ratio, mutual=True, max_distance=max_distance)
+    return np.asarray(i1, dtype=np.int64), np.asarray(i2, dtype=np.int64)
+
+
+def _brute_force_match_cv2(desc1, desc2, binary, ratio, max_distance):  # pragma: no cover - reference only
+    import cv2
+
+    norm = cv2.NORM_HAMMING if binary else cv2.NORM_L2
+    bf = cv2.BFMatcher(norm)
+    d1 = desc1 if binary else desc1.astype(np.float32)
+    d2 = desc2 if binary else desc2.astype(np.float32)
+    knn = bf.knnMatch(d1, d2, k=2)
+    arr = np.array([(m[0].queryIdx, m[0].trainIdx, m[0].distance, m[1].distance) for m in knn if len(m) == 2])
+    if len(arr) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ok = arr[:, 2] < ratio * arr[:, 3]
+    if max_distance is not None:
+        ok &= arr[:, 2] <= max_distance
+    i1 = arr[ok, 0].astype(np.int64)
+    i2 = arr[ok, 1].astype(np.int64)
+    # mutual: best backward match of i2 must be i1
+    back = bf.match(d2, d1)
+    back_idx = np.full(len(desc2), -1, dtype=np.int64)
+    for m in back:  # one call per frame pair; small Python loop over OpenCV result objects
+        back_idx[m.queryIdx] = m.trainIdx
+    keep = back_idx[i2] == i1
+    return i1[keep], i2[keep]

@@ -1,0 +1,271 @@
+"""Per-frame pose estimators used by the tracker: PnP (3D-2D), 3D-3D alignment, essential matrix
+(2D-2D), pose-only Gauss-Newton refinement, two-view triangulation. All vectorized over points."""
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+CHI2_2DOF = 5.991  # 95% chi-square quantiles (ORB-SLAM PoseOptimization thresholds)
+CHI2_3DOF = 7.815
+
+
+def inv_T(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t).reshape(3)
+    return T
+
+
+def _so3_exp(w: np.ndarray) -> np.ndarray:
+    R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
+    return R
+
+
+def pnp_ransac(
+    X_world: np.ndarray,
+    uv: np.ndarray,
+    K: np.ndarray,
+    T_cam_world_guess: np.ndarray | None = None,
+    reproj_px: float = 3.0,
+    iterations: int = 100,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """RANSAC PnP (P3P/EPnP minimal solvers, OpenCV) on undistorted pixels; returns
+    ``(T_cam_world or None, inlier mask)``."""
+    n = len(X_world)
+    mask = np.zeros(n, dtype=bool)
+    if n < 6:
+        return None, mask
+    from vslam.errors import GeometryError
+    from vslam.geometry.pnp import solve_pnp
+
+    try:
+        T, m = solve_pnp(X_world, uv, K, T_cam_world_init=T_cam_world_guess, threshold_px=reproj_px,
+                         max_iters=iterations)
+        return np.asarray(T, dtype=float), np.asarray(m, dtype=bool)
+    except GeometryError:
+        return None, mask
+    use_guess = T_cam_world_guess is not None
+    rvec = tvec = None
+    if use_guess:
+        rvec, _ = cv2.Rodrigues(T_cam_world_guess[:3, :3])
+        tvec = T_cam_world_guess[:3, 3].reshape(3, 1).copy()
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        X_world.astype(np.float64), uv.astype(np.float64), K, None, rvec, tvec,
+        useExtrinsicGuess=use_guess, iterationsCount=iterations, reprojectionError=reproj_px,
+        confidence=0.999, flags=cv2.SOLVEPNP_EPNP if not use_guess else cv2.SOLVEPNP_ITERATIVE,
+    )
+    if not ok or inl is None or len(inl) < 6:
+        return None, mask
+    mask[inl.ravel()] = True
+    return make_T(_so3_exp(rvec), tvec), mask
+
+
+def refine_pose(
+    T_cam_world: np.ndarray,
+    X_world: np.ndarray,
+    uv: np.ndarray,
+    K: np.ndarray,
+    sigma: np.ndarray | None = None,
+    u_right: np.ndarray | None = None,
+    bf: float = 0.0,
+    rounds: int = 3,
+    iterations: int = 5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose-only Gauss-Newton with Huber weights on reprojection residuals ``(u, v)`` and, where
+    ``u_right`` is finite, the virtual right-camera residual ``u_r = u - bf / z`` (ORB-SLAM2's
+    stereo/RGB-D pose optimization, Mur-Artal & Tardos 2017, eq. (2)-(3)). Outliers are reclassified
+    each round by the chi-square test. Left perturbation ``T <- exp(xi) T``, ``xi = (rho, phi)``.
+
+    Returns ``(T_cam_world, inlier mask)``.
+    """
+    n = len(X_world)
+    T = T_cam_world.copy()
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    info = np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2
+    has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
+    ur = np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0)
+    inl = np.ones(n, dtype=bool)
+    delta_mono, delta_st = np.sqrt(CHI2_2DOF), np.sqrt(CHI2_3DOF)
+    for rnd in range(rounds):
+        for _ in range(iterations):
+            Xc = X_world @ T[:3, :3].T + T[:3, 3]
+            x, y, z = Xc[:, 0], Xc[:, 1], np.maximum(Xc[:, 2], 1e-6)
+            iz = 1.0 / z
+            u_hat = fx * x * iz + cx
+            v_hat = fy * y * iz + cy
+            r = np.empty((n, 3))
+            r[:, 0] = u_hat - uv[:, 0]
+            r[:, 1] = v_hat - uv[:, 1]
+            r[:, 2] = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
+            # J = d(u, v, u_r)/d(xi) for T <- exp(xi) T: d(proj)/dXc @ [I, -[Xc]x], written out
+            J = np.zeros((n, 3, 6))
+            a = fx * iz
+            b = -fx * x * iz * iz
+            c = fy * iz
+            d = -fy * y * iz * iz
+            J[:, 0, 0] = a
+            J[:, 0, 2] = b
+            J[:, 0, 3] = b * y
+            J[:, 0, 4] = a * z - b * x
+            J[:, 0, 5] = -a * y
+            J[:, 1, 1] = c
+            J[:, 1, 2] = d
+            J[:, 1, 3] = -c * z + d * y
+            J[:, 1, 4] = -d * x
+            J[:, 1, 5] = c * x
+            b2 = b + bf * iz * iz
+            J[:, 2, 0] = a
+            J[:, 2, 2] = b2
+            J[:, 2, 3] = b2 * y
+            J[:, 2, 4] = a * z - b2 * x
+            J[:, 2, 5] = -a * y
+            J[:, 2, :] *= has_r[:, None]
+            e2 = info * (r * r).sum(axis=1)
+            delta = np.where(has_r, delta_st, delta_mono)
+            e = np.sqrt(e2)
+            w = info * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
+            w = np.where(inl & (Xc[:, 2] > 0), w, 0.0)
+            sw = np.sqrt(w)
+            Jr = (J * sw[:, None, None]).reshape(-1, 6)
+            rr = (r * sw[:, None]).reshape(-1)
+            H = Jr.T @ Jr
+            g = Jr.T @ rr
+            try:
+                dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                break
+            dT = np.eye(4)
+            dT[:3, :3] = _so3_exp(dx[3:])
+            dT[:3, 3] = dx[:3]
+            T = dT @ T
+            if np.linalg.norm(dx) < 1e-5:
+                break
+        Xc = X_world @ T[:3, :3].T + T[:3, 3]
+        z = np.maximum(Xc[:, 2], 1e-6)
+        u_hat = fx * Xc[:, 0] / z + cx
+        v_hat = fy * Xc[:, 1] / z + cy
+        e2 = (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
+        e2 += np.where(has_r, ((u_hat - bf / z) - ur) ** 2, 0.0)
+        e2 *= info
+        inl = (e2 < np.where(has_r, CHI2_3DOF, CHI2_2DOF)) & (Xc[:, 2] > 0)
+        if inl.sum() < 6:
+            break
+    return T, inl
+
+
+def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched rigid alignment ``dst ~ R src + t`` (Arun et al. 1987 / Umeyama 1991 without scale)
+    of ``(H, m, 3)`` point sets; returns ``R (H, 3, 3), t (H, 3)``."""
+    ms, md = src.mean(axis=1), dst.mean(axis=1)
+    C = np.einsum("hni,hnj->hij", dst - md[:, None], src - ms[:, None])
+    U, _, Vt = np.linalg.svd(C)
+    d = np.sign(np.linalg.det(U @ Vt))
+    S = np.tile(np.eye(3), (len(src), 1, 1))
+    S[:, 2, 2] = d
+    R = U @ S @ Vt
+    t = md - np.einsum("hij,hj->hi", R, ms)
+    return R, t
+
+
+def align_ransac(
+    X_src: np.ndarray, X_dst: np.ndarray, threshold: np.ndarray | float, iterations: int = 200,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """3D-3D RANSAC (3-point minimal sets, all hypotheses scored at once), then least squares on
+    the inliers, re-scored twice. Returns ``(T_dst_src or None, inlier mask)``."""
+    n = len(X_src)
+    if n < 6:
+        return None, np.zeros(n, bool)
+    rng = rng or np.random.default_rng(0)
+    thr2 = np.broadcast_to(np.asarray(threshold, float) ** 2, (n,))
+    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(iterations)]) if n < 50 else \
+        rng.integers(0, n, size=(iterations, 3))
+    R, t = kabsch_batch(X_src[idx], X_dst[idx])
+    pred = np.matmul(X_src[None], R.transpose(0, 2, 1)) + t[:, None, :]
+    err2 = ((pred - X_dst[None]) ** 2).sum(axis=2)
+    score = (err2 < thr2[None]).sum(axis=1)
+    best = int(np.argmax(score))
+    mask = err2[best] < thr2
+    T = None
+    for _ in range(3):
+        if mask.sum() < 6:
+            return None, mask
+        Rb, tb = kabsch_batch(X_src[mask][None], X_dst[mask][None])
+        T = make_T(Rb[0], tb[0])
+        e2 = ((X_src @ T[:3, :3].T + T[:3, 3] - X_dst) ** 2).sum(axis=1)
+        mask = e2 < thr2
+    return T, mask
+
+
+def essential_pose(
+    uv1: np.ndarray, uv2: np.ndarray, K: np.ndarray, threshold_px: float = 1.0, min_parallax_deg: float = 0.5,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
+    """Relative pose from undistorted pixel matches: ``x2 = R x1 + t`` with ``|t| = 1`` (five-point
+    RANSAC + cheirality, :func:`vslam.geometry.epipolar.relative_pose`).
+
+    Returns ``(R, t, inlier mask, status)``: status ``ok``; ``rotation`` when the median
+    rotation-compensated parallax is below ``min_parallax_deg`` (then ``t`` is zero and ``R`` the
+    best rotation-only fit); ``failed`` (R None).
+    """
+    from vslam.errors import GeometryError
+    from vslam.geometry.epipolar import bearings, normalize_points, relative_pose, rotation_only_fit
+
+    n = len(uv1)
+    if n < 8:
+        return None, None, np.zeros(n, bool), "failed"
+    f1 = bearings(normalize_points(uv1, K))
+    f2 = bearings(normalize_points(uv2, K))
+    R_rot, par = rotation_only_fit(f1, f2)
+    if float(np.median(par)) < min_parallax_deg:
+        return R_rot, np.zeros(3), par < 3.0 * max(float(np.median(par)), 0.05), "rotation"
+    try:
+        R, t, mask = relative_pose(uv1, uv2, K, threshold_px=threshold_px, min_parallax_deg=min_parallax_deg)
+    except GeometryError as e:
+        log.debug("essential_pose: %s", e)
+        if "rotation" in str(e):  # parallax too small against the epipolar noise
+            med = max(float(np.median(par)), 0.05)
+            return R_rot, np.zeros(3), par < 3.0 * med, "rotation"
+        return None, None, np.zeros(n, bool), "failed"
+    return np.asarray(R), np.asarray(t).reshape(3), np.asarray(mask, bool), "ok"
+
+
+def triangulate(
+    T_cam1_world: np.ndarray, T_cam2_world: np.ndarray, K: np.ndarray, uv1: np.ndarray, uv2: np.ndarray,
+) -> np.ndarray:
+    """Linear (DLT) two-view triangulation of undistorted pixels (Hartley & Zisserman 12.2);
+    returns world points ``(N, 3)``."""
+    P1 = K @ T_cam1_world[:3]
+    P2 = K @ T_cam2_world[:3]
+    Xh = cv2.triangulatePoints(P1, P2, uv1.T.astype(np.float64), uv2.T.astype(np.float64))
+    w = Xh[3]
+    w = np.where(np.abs(w) < 1e-12, 1e-12, w)
+    return (Xh[:3] / w).T
+
+
+def reprojection_error(T_cam_world: np.ndarray, K: np.ndarray, X_world: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixel error (N,), depth (N,))`` of world points in a camera."""
+    Xc = X_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = Xc[:, 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
+    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
+    return np.hypot(u - uv[:, 0], v - uv[:, 1]), z
+
+
+def parallax_deg(T_world_cam1: np.ndarray, T_world_cam2: np.ndarray, X_world: np.ndarray) -> np.ndarray:
+    """Angle at each point between the rays to the two camera centres."""
+    a = X_world - T_world_cam1[:3, 3]
+    b = X_world - T_world_cam2[:3, 3]
+    c = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-12)
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))

@@ -1,0 +1,754 @@
+"""Per-frame tracking: features -> association -> pose -> keyframe decision -> new map points.
+
+One :class:`Tracker` serves the three sensors; the choices are
+
+* association: ``match`` (guided descriptor matching of the projected local map, ORB-SLAM's
+  TrackWithMotionModel + TrackLocalMap, Mur-Artal et al. 2015 sec. V) or ``track`` (KLT tracks
+  carry their map point from frame to frame; new corners are detected at keyframes);
+* motion: ``3d2d`` (PnP RANSAC + pose-only Gauss-Newton on reprojection and, for stereo/RGB-D,
+  virtual-right-camera residuals), ``3d3d`` (RANSAC + weighted Kabsch of depth points onto map
+  points), ``2d2d`` (essential matrix between consecutive frames, ``C_n = C_{n-1} T_n``, scaled by
+  depth or, for monocular, by the relative scale of triangulated points).
+
+A frame with too few inliers is *lost* (no pose); after ``max_lost_frames`` lost frames the tracker
+re-initializes a new map segment anchored at the last good pose, so a run always continues.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vslam.datasets.frame import Frame
+from vslam.features.config import FeatureConfig
+from vslam.frontend.config import FrontendConfig
+from vslam.frontend.initializer import MonoInitializer
+from vslam.frontend.keyframe_policy import need_keyframe
+from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
+from vslam.frontend.motion_model import MotionModel
+from vslam.frontend.observation import (
+    Observation, detect_mask, klt_track, sample_depth, stereo_by_flow,
+)
+from vslam.frontend.pose import (
+    align_ransac, essential_pose, inv_T, make_T, parallax_deg, pnp_ransac, refine_pose, reprojection_error,
+    triangulate,
+)
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.keyframe import KeyFrame
+from vslam.map.map import Map
+
+log = logging.getLogger(__name__)
+
+RGBD_VIRTUAL_BASELINE = 0.08  # metres; ORB-SLAM2's TUM settings use bf = 40 for fx ~ 517
+
+BINARY_DETECTORS = ("orb", "gftt_orb", "brisk", "akaze")
+
+
+@dataclass
+class TrackOutput:
+    """What :meth:`Tracker.track` reports for one frame."""
+
+    T_world_cam: np.ndarray | None
+    state: str  # "ok" | "lost" | "initializing"
+    is_keyframe: bool
+    n_inliers: int
+    ref_keyframe: int | None = None
+    backfill: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (timestamp, T_world_cam) of earlier frames
+
+
+class Tracker:
+    """Visual odometry against a local map; see the module docstring."""
+
+    def __init__(
+        self,
+        cfg: FrontendConfig,
+        feature_cfg: FeatureConfig,
+        camera: PinholeCamera,
+        sensor: str,
+        map_: Map,
+        on_keyframe: Callable[[KeyFrame], None] | None = None,
+    ) -> None:
+        from vslam.features.detect import create_detector
+
+        cfg.check_sensor(sensor)
+        if sensor == "stereo" and camera.baseline is None:
+            from vslam.errors import CalibrationError
+
+            raise CalibrationError("stereo tracking needs camera.baseline (rectified stereo calibration)")
+        self.cfg = cfg
+        self.fcfg = feature_cfg
+        self.camera = camera
+        self.sensor = sensor
+        self.map = map_
+        self.on_keyframe = on_keyframe
+        self.detector = create_detector(feature_cfg)
+        self.binary = feature_cfg.detector in BINARY_DETECTORS
+        self.scale_factor = feature_cfg.scale_factor
+        self.max_level_scale = feature_cfg.scale_factor ** (feature_cfg.n_levels - 1)
+        self.K = camera.K
+        if sensor == "stereo":
+            self.bf = camera.fx * float(camera.baseline)
+        elif sensor == "rgbd":
+            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
+        else:
+            self.bf = 0.0
+        self.motion_model = MotionModel()
+        self.initializer = MonoInitializer(cfg, self.K)
+        self.state = "initializing"
+        self.prev: Observation | None = None
+        self.prev_gray: np.ndarray | None = None
+        self.prev_klt_src: np.ndarray | None = None
+        self.ref_kf: int | None = None
+        self.last_kf: int | None = None
+        self.frames_since_kf = 0
+        self.segment = -1
+        self.n_lost_run = 0
+        self.T_world_last_good: np.ndarray | None = None
+        self.speed_per_frame = 0.0
+        self._local_ids: np.ndarray | None = None
+        self._mono_X: tuple[np.ndarray, np.ndarray] | None = None  # (kp idx, X in that frame) for 2d2d mono
+        self._pending_X: tuple[np.ndarray, np.ndarray] | None = None
+        self._ref2d: Observation | None = None
+        self._kf_ref_tracked: int | None = None
+        self._T_world_ref2d: np.ndarray | None = None
+        self.timers: dict[str, float] = {"features": 0.0, "association": 0.0, "pose": 0.0, "mapping": 0.0}
+        self.n_frames = 0
+        self.rng = np.random.default_rng(0)
+
+    # ================================================================== per frame
+    def track(self, frame: Frame) -> TrackOutput:
+        self.n_frames += 1
+        gray = frame.gray
+        t0 = time.perf_counter()
+        T_world_pred = self.motion_model.predict() if self.state != "initializing" else None
+        obs, klt_prev_idx = self._observe(frame, gray, T_world_pred)
+        self.timers["features"] += time.perf_counter() - t0
+
+        if self.state == "initializing":
+            out = self._initialize(frame, gray, obs, klt_prev_idx)
+        else:
+            out = self._track_initialized(frame, gray, obs, klt_prev_idx, T_world_pred)
+        return out
+
+    # ------------------------------------------------------------------ features
+    def _observe(self, frame: Frame, gray: np.ndarray, T_world_pred: np.ndarray | None):
+        cfg = self.cfg
+        klt_prev_idx = None
+        if cfg.association == "track" and self.prev is not None and self.prev_gray is not None and len(self.prev):
+            prev = self.prev
+            init = None
+            if T_world_pred is not None and self.motion_model.valid:
+                init = prev.uv.copy()
+                has = prev.point_ids >= 0
+                if has.any():
+                    X = self.map.points.position[prev.point_ids[has]]
+                    T_cw = inv_T(T_world_pred)
+                    Xc = X @ T_cw[:3, :3].T + T_cw[:3, 3]
+                    front = Xc[:, 2] > 1e-3
+                    uvp = self.camera.project(np.where(front[:, None], Xc, 1.0))
+                    uvp = self.camera.distort_points(uvp)
+                    sub = init[has]
+                    sub[front] = uvp[front]
+                    init[has] = sub
+                    # move the others by the median predicted flow
+                    flow = np.median(init[has] - prev.uv[has], axis=0)
+                    init[~has] += flow
+            uv, ok = klt_track(self.prev_gray, gray, prev.uv, init, cfg.klt_window, cfg.klt_levels)
+            if init is not None and ok.sum() < 0.5 * len(prev):  # a bad prediction: retry from zero flow
+                uv2, ok2 = klt_track(self.prev_gray, gray, prev.uv, None, cfg.klt_window, cfg.klt_levels)
+                if ok2.sum() > ok.sum():
+                    uv, ok = uv2, ok2
+            klt_prev_idx = np.flatnonzero(ok)
+            obs = prev.subset(klt_prev_idx)
+            obs.uv = uv[ok]
+            obs.uv_undist = self.camera.undistort_points(obs.uv)
+            # a point id dropped from the map stays dropped
+            pid = obs.point_ids
+            dead = (pid >= 0) & ~self.map.points.alive[np.clip(pid, 0, None)] if len(self.map.points) else pid >= 0
+            obs.point_ids = np.where(dead, -1, pid)
+            self._add_depth(frame, gray, obs)
+        else:
+            obs = self._detect(frame, gray)
+        return obs, klt_prev_idx
+
+    def _detect(self, frame: Frame, gray: np.ndarray, mask: np.ndarray | None = None) -> Observation:
+        feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
+        n = len(feats)
+        uv = np.asarray(feats.uv, dtype=float).reshape(-1, 2)
+        obs = Observation(
+            uv=uv,
+            uv_undist=self.camera.undistort_points(uv),
+            descriptors=None if self.cfg.association == "track" else feats.descriptors,
+            octave=np.asarray(feats.octave, dtype=np.int32) if self.cfg.association == "match" else np.zeros(n, np.int32),
+            depth=np.full(n, np.nan),
+            point_ids=np.full(n, -1, dtype=np.int64),
+            binary=feats.binary,
+            scale_factor=feats.scale_factor,
+            anchor_kf=np.full(n, -1, dtype=np.int64),
+            anchor_idx=np.arange(n, dtype=np.int64),
+        )
+        self._add_depth(frame, gray, obs)
+        return obs
+
+    def _add_depth(self, frame: Frame, gray: np.ndarray, obs: Observation) -> None:
+        cfg = self.cfg
+        n = len(obs)
+        if self.sensor == "rgbd":
+            if frame.depth is None:
+                from vslam.errors import DatasetError
+
+                raise DatasetError(f"frame {frame.index} ({frame.path}) has no depth image but sensor is rgbd")
+            obs.depth = sample_depth(frame.depth, obs.uv, cfg.min_depth, cfg.max_depth)
+            obs.u_right = obs.uv_undist[:, 0] - self.bf / obs.depth
+        elif self.sensor == "stereo":
+            if frame.image_right is None:
+                from vslam.errors import DatasetError
+
+                raise DatasetError(f"frame {frame.index} ({frame.path}) has no right image but sensor is stereo")
+            right = frame.image_right
+            if right.ndim == 3:
+                import cv2
+
+                right = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+            d0 = None
+            if obs.u_right is not None and len(obs.u_right) == n:
+                d0 = obs.uv[:, 0] - obs.u_right  # last frame's disparity as the initial guess
+            obs.depth, obs.u_right = stereo_by_flow(
+                gray, right, obs.uv, self.camera, cfg.stereo_max_depth_baselines, cfg.stereo_max_dy, cfg.min_depth, d0,
+            )
+        else:
+            obs.depth = np.full(n, np.nan)
+            obs.u_right = None
+
+    # ------------------------------------------------------------------ initialization
+    def _T_world_origin(self) -> np.ndarray:
+        return np.eye(4) if self.T_world_last_good is None else self.T_world_last_good.copy()
+
+    def _initialize(self, frame: Frame, gray: np.ndarray, obs: Observation, klt_prev_idx) -> TrackOutput:
+        if self.sensor != "mono":
+            valid = np.isfinite(obs.depth)
+            if valid.sum() < max(2 * self.cfg.min_inliers, 50):
+                self._set_prev(obs, gray)
+                return TrackOutput(None, "initializing", False, 0)
+            self.segment += 1
+            T_world_cam = self._T_world_origin()
+            t0 = time.perf_counter()
+            self._insert_keyframe(frame, gray, obs, T_world_cam)
+            self.timers["mapping"] += time.perf_counter() - t0
+            self._start_tracking(T_world_cam)
+            self._set_prev(obs, gray)
+            self._set_ref2d(obs, T_world_cam)
+            return TrackOutput(T_world_cam, "ok", True, int(valid.sum()), self.ref_kf)
+        return self._initialize_mono(frame, gray, obs)
+
+    def _initialize_mono(self, frame: Frame, gray: np.ndarray, obs: Observation) -> TrackOutput:
+        cfg = self.cfg
+        init = self.initializer
+        if init.ref is None or init.attempts >= cfg.init_max_frames:
+            self._set_mono_reference(frame, gray, obs)
+            return TrackOutput(None, "initializing", False, 0)
+        t0 = time.perf_counter()
+        if cfg.association == "match":
+            ref_idx, cur_idx = brute_force_match(init.ref.descriptors, obs.descriptors, self.binary, ratio=0.9,
+                                                 max_distance=64.0 if self.binary else None)
+        else:
+            cur_idx = np.arange(len(obs))
+            ref_idx = obs.anchor_idx.copy()
+        self.timers["association"] += time.perf_counter() - t0
+        if len(ref_idx) < cfg.init_min_matches:
+            # too few correspondences left: this frame becomes the new reference
+            self._set_mono_reference(frame, gray, obs)
+            return TrackOutput(None, "initializing", False, int(len(ref_idx)))
+        t0 = time.perf_counter()
+        res = init.try_initialize(ref_idx, obs, cur_idx)
+        self.timers["pose"] += time.perf_counter() - t0
+        if res is None:
+            # keep the correspondences (not the image) to give this frame a pose once the map exists
+            init.pending.append((frame.timestamp, ref_idx, obs.uv_undist[cur_idx]))
+            self._set_prev(obs, gray)
+            return TrackOutput(None, "initializing", False, int(len(ref_idx)))
+        # scale a re-initialized segment to the last known speed (keeps one Sim(3) for the run)
+        T_cur_ref = res.T_cur_ref.copy()
+        X_ref = res.X_ref.copy()
+        gap = frame.index - init.ref_frame_index
+        if self.speed_per_frame > 0 and self.T_world_last_good is not None:
+            s = self.speed_per_frame * max(gap, 1) / max(np.linalg.norm(T_cur_ref[:3, 3]), 1e-9)
+            T_cur_ref[:3, 3] *= s
+            X_ref *= s
+        self.segment += 1
+        T_world_ref = self._T_world_origin()
+        T_world_cur = T_world_ref @ inv_T(T_cur_ref)
+        X_world = X_ref @ T_world_ref[:3, :3].T + T_world_ref[:3, 3]
+        t0 = time.perf_counter()
+        ref = init.ref
+        kf0 = self._make_keyframe(init.ref_frame_index, init.ref_timestamp, T_world_ref, ref)
+        cur = obs
+        desc = None if cur.descriptors is None else cur.descriptors[res.cur_idx]
+        pids = self.map.points.add(X_world, desc, T_world_ref[:3, 3], kf0.id,
+                                   np.power(self.scale_factor, ref.octave[res.ref_idx].astype(float)),
+                                   self.max_level_scale)
+        kf0.point_ids[res.ref_idx] = pids
+        self.map.add_keyframe(kf0)
+        cur.point_ids[:] = -1
+        cur.point_ids[res.cur_idx] = pids
+        if cfg.association == "track":
+            cur.anchor_kf = np.full(len(cur), kf0.id, dtype=np.int64)  # anchor_idx already indexes the reference
+        self.last_kf = kf0.id
+        self._insert_keyframe(frame, gray, cur, T_world_cur, new_points=cfg.association == "track")
+        self.timers["mapping"] += time.perf_counter() - t0
+        self._start_tracking(T_world_cur, T_world_prev=T_world_ref, gap=gap)
+        Xc = X_world @ inv_T(T_world_cur)[:3, :3].T + inv_T(T_world_cur)[:3, 3]
+        self._set_ref2d(cur, T_world_cur, Xc, res.cur_idx.copy())
+        self._set_prev(cur, gray)
+        backfill = [(init.ref_timestamp, T_world_ref)] + self._localize_pending(kf0)
+        init.reset()
+        return TrackOutput(T_world_cur, "ok", True, len(pids), self.ref_kf, backfill)
+
+    def _localize_pending(self, kf0: KeyFrame) -> list[tuple[float, np.ndarray]]:
+        """Poses of the frames seen between the reference and the initialization (PnP on the new map)."""
+        out = []
+        for ts, ref_idx, uv in self.initializer.pending:
+            pid = kf0.point_ids[ref_idx]
+            has = pid >= 0
+            if has.sum() < self.cfg.min_inliers:
+                continue
+            T_cw, m = pnp_ransac(self.map.points.position[pid[has]], uv[has], self.K, None, self.cfg.pnp_reproj_px,
+                                 self.cfg.pnp_iterations)
+            if T_cw is not None and m.sum() >= self.cfg.min_inliers:
+                out.append((ts, inv_T(T_cw)))
+        return out
+
+    def _set_mono_reference(self, frame: Frame, gray: np.ndarray, obs: Observation) -> None:
+        if self.cfg.association == "track":
+            # start fresh tracks at the reference so every track can be traced back to it
+            obs = self._detect(frame, gray)
+        obs.anchor_idx = np.arange(len(obs), dtype=np.int64)
+        obs.anchor_kf = np.full(len(obs), -1, dtype=np.int64)
+        self.initializer.set_reference(obs, frame.index, frame.timestamp)
+        self._set_prev(obs, gray)
+
+    def _start_tracking(self, T_world_cam: np.ndarray, T_world_prev: np.ndarray | None = None, gap: int = 1) -> None:
+        self.state = "ok"
+        self.n_lost_run = 0
+        self.motion_model.reset(T_world_prev)
+        if T_world_prev is not None:
+            self.motion_model.update(T_world_cam)
+            if gap > 1:  # per-frame velocity
+                from vslam.geometry.lie import se3_exp, se3_log
+
+                self.motion_model.T_last_cur = se3_exp(se3_log(self.motion_model.T_last_cur) / gap)
+        else:
+            self.motion_model.update(T_world_cam)
+        self.T_world_last_good = T_world_cam.copy()
+
+    def _set_prev(self, obs: Observation, gray: np.ndarray) -> None:
+        self.prev = obs
+        self.prev_gray = gray
+
+    # ------------------------------------------------------------------ tracking
+    def _local_point_ids(self) -> np.ndarray:
+        if self._local_ids is None:
+            kfs = self.map.local_keyframes(self.ref_kf, self.cfg.local_keyframes) if self.ref_kf is not None else []
+            self._local_ids = self.map.local_point_ids(kfs)
+        ids = self._local_ids
+        return ids[self.map.points.alive[ids]]
+
+    def _track_initialized(self, frame, gray, obs: Observation, klt_prev_idx, T_world_pred) -> TrackOutput:
+        cfg = self.cfg
+        if cfg.motion == "2d2d":
+            T_world_cam, n_inl = self._pose_2d2d(obs, klt_prev_idx)
+        else:
+            T_world_cam, n_inl = self._pose_against_map(obs, T_world_pred, relocalize=self.state == "lost")
+        if T_world_cam is None:
+            return self._lost(frame, gray, obs)
+        # ---------------------------------------------------------- keyframe?
+        t0 = time.perf_counter()
+        self.state = "ok"
+        self.n_lost_run = 0
+        self.frames_since_kf += 1
+        ref = self.map.keyframes.get(self.ref_kf)
+        # ORB-SLAM's NeedNewKeyFrame compares the map points tracked now with those tracked from the
+        # reference keyframe; here the reference count is what the first frame after it tracked,
+        # which factors out the detector's frame-to-frame repeatability
+        n_tracked_ref = int((obs.point_ids >= 0).sum())
+        if self.frames_since_kf == 1 or self._kf_ref_tracked is None:
+            self._kf_ref_tracked = n_tracked_ref
+        n_ref = self._kf_ref_tracked
+        force = False
+        if cfg.association == "track":
+            force = len(obs) < cfg.klt_min_tracks or (obs.point_ids >= 0).sum() < cfg.klt_min_tracks * 0.5
+        if self.sensor != "mono" and cfg.motion != "2d2d":
+            # depth sensors: few close tracked points means the map is thinning (ORB-SLAM2 "close points")
+            close = np.isfinite(obs.depth) & (obs.point_ids >= 0)
+            force |= close.sum() < 100 and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > 70
+        moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
+        ratio = cfg.kf_tracked_ratio_mono if self.sensor == "mono" else cfg.kf_tracked_ratio
+        is_kf = need_keyframe(cfg, self.frames_since_kf, n_tracked_ref, n_ref, n_inl, moved, force, ratio)
+        log.debug("frame %d: %d inliers, %d/%d of the reference keyframe's points, force %s -> keyframe %s",
+                  frame.index, n_inl, n_tracked_ref, n_ref, force, is_kf)
+        if is_kf:
+            self._insert_keyframe(frame, gray, obs, T_world_cam)
+        self.timers["mapping"] += time.perf_counter() - t0
+        # motion model
+        if self.T_world_last_good is not None:
+            self.speed_per_frame = float(np.linalg.norm(T_world_cam[:3, 3] - self.T_world_last_good[:3, 3]))
+        self.motion_model.update(T_world_cam)
+        self.T_world_last_good = T_world_cam.copy()
+        self._set_prev(obs, gray)
+        return TrackOutput(T_world_cam, "ok", is_kf, n_inl, self.ref_kf)
+
+    def _lost(self, frame, gray, obs) -> TrackOutput:
+        self.n_lost_run += 1
+        self.state = "lost"
+        log.info("frame %d lost (%d in a row)", frame.index, self.n_lost_run)
+        if self.n_lost_run >= self.cfg.max_lost_frames:
+            self._reinitialize()
+            if self.sensor != "mono":  # depth sensors restart a map segment on this very frame
+                obs.point_ids[:] = -1
+                out = self._initialize(frame, gray, obs, None)
+                if out.T_world_cam is not None:
+                    return out
+                self.state = "lost"
+                return TrackOutput(None, "lost", False, 0)
+        self._set_prev(obs, gray)
+        # keep predicting from the last good pose: advance the motion model by one frame
+        if self.motion_model.T_world_last is not None:
+            self.motion_model.T_world_last = self.motion_model.T_world_last @ self.motion_model.T_last_cur
+        return TrackOutput(None, "lost", False, 0)
+
+    def _reinitialize(self) -> None:
+        log.warning("tracking lost for %d frames: re-initializing a new map segment", self.n_lost_run)
+        self.state = "initializing"
+        self.initializer.reset()
+        self.ref_kf = None
+        self.last_kf = None
+        self._local_ids = None
+        self._mono_X = None
+        self._ref2d = None
+        if self.motion_model.T_world_last is not None:
+            self.T_world_last_good = self.motion_model.T_world_last.copy()
+        self.prev = None
+
+    # ------------------------------------------------------------------ 3D-2D / 3D-3D against the map
+    def _pose_against_map(self, obs: Observation, T_world_pred: np.ndarray | None, relocalize: bool):
+        cfg = self.cfg
+        pts = self.map.points
+        T_cw_pred = inv_T(T_world_pred) if T_world_pred is not None else None
+        t0 = time.perf_counter()
+        local_ids = self._local_point_ids()
+        vis_ids = np.zeros(0, np.int64)
+        if cfg.association == "match":
+            obs.point_ids[:] = -1
+            tree = cKDTree(obs.uv_undist) if len(obs) else None
+            radius = cfg.search_radius_lost_px if relocalize else cfg.search_radius_px
+            vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw_pred, self.camera)
+            m, k = self._guided(vis_ids, proj, obs, radius, tree)
+            if len(m) < 3 * cfg.min_inliers and not relocalize:
+                m, k = self._guided(vis_ids, proj, obs, cfg.search_radius_lost_px, tree)
+            if len(m) < cfg.min_inliers and len(local_ids) and obs.descriptors is not None:
+                # no usable prediction: match the whole local map by descriptor alone
+                d = pts.descriptor[local_ids]
+                i1, i2 = brute_force_match(d, obs.descriptors, self.binary, ratio=0.8,
+                                           max_distance=cfg.max_descriptor_distance if self.binary else None)
+                m, k = i1, i2
+                vis_ids = local_ids
+                T_cw_pred = None
+            obs.point_ids[k] = vis_ids[m]
+        self.timers["association"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        T_cw, inl = self._estimate(obs, T_cw_pred)
+        if T_cw is not None and cfg.association == "match":
+            # second pass: the whole local map at the refined pose with a tight radius (TrackLocalMap)
+            t1 = time.perf_counter()
+            vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw, self.camera)
+            obs.point_ids[:] = -1
+            m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.pnp_reproj_px * 1.5), tree)
+            obs.point_ids[k] = vis_ids[m]
+            self.timers["association"] += time.perf_counter() - t1
+            T_cw2, inl2 = self._estimate(obs, T_cw, refine_only=True)
+            if T_cw2 is not None and inl2.sum() >= inl.sum() * 0.8:
+                T_cw, inl = T_cw2, inl2
+        self.timers["pose"] += time.perf_counter() - t0
+        if T_cw is None or inl.sum() < cfg.min_inliers:
+            obs.point_ids[:] = -1 if cfg.association == "match" else obs.point_ids
+            return None, int(0 if inl is None else inl.sum())
+        sel = np.flatnonzero(obs.point_ids >= 0)
+        bad = sel[~inl]
+        obs.point_ids[bad] = -1
+        if cfg.association == "match":
+            pts.record(vis_ids, obs.point_ids[obs.point_ids >= 0])
+        return inv_T(T_cw), int(inl.sum())
+
+    def _guided(self, vis_ids, proj, obs: Observation, radius: float, tree):
+        if len(vis_ids) == 0 or obs.descriptors is None or len(obs) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        m, k, _ = guided_match(
+            proj, self.map.points.descriptor[vis_ids], obs.uv_undist, obs.descriptors, radius, self.binary,
+            self.cfg.max_descriptor_distance if self.binary else None, self.cfg.match_ratio, kp_tree=tree,
+        )
+        return m, k
+
+    def _estimate(self, obs: Observation, T_cw_guess: np.ndarray | None, refine_only: bool = False):
+        """Pose from the associated points of ``obs``; returns ``(T_cam_world, inlier mask over
+        the associated points in index order)``."""
+        cfg = self.cfg
+        sel = np.flatnonzero(obs.point_ids >= 0)
+        if len(sel) < cfg.min_inliers:
+            return None, np.zeros(len(sel), bool)
+        Xw = self.map.points.position[obs.point_ids[sel]]
+        uv = obs.uv_undist[sel]
+        if cfg.motion == "3d3d":
+            z = obs.depth[sel]
+            has = np.isfinite(z)
+            if has.sum() < cfg.min_inliers:
+                return None, np.zeros(len(sel), bool)
+            Xc = self.camera.backproject(uv[has], z[has])
+            if self.sensor == "stereo":
+                thr = np.maximum(cfg.align_inlier_m, 2.0 * z[has] ** 2 / self.bf)
+            else:
+                thr = cfg.align_inlier_m * np.maximum(1.0, z[has] ** 2)
+            T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=100 if not refine_only else 30, rng=self.rng)
+            inl = np.zeros(len(sel), bool)
+            if T_wc is None:
+                return None, inl
+            inl[np.flatnonzero(has)[m]] = True
+            return inv_T(T_wc), inl
+        # 3D-2D
+        sigma = obs.sigma[sel]
+        ur = None if obs.u_right is None else obs.u_right[sel]
+        if refine_only and T_cw_guess is not None:
+            T_cw = T_cw_guess
+        else:
+            T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations)
+            if T_cw is None:
+                return None, np.zeros(len(sel), bool)
+        T_cw, inl = refine_pose(T_cw, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
+        return T_cw, inl
+
+    # ------------------------------------------------------------------ 2D-2D
+    def _set_ref2d(self, obs: Observation, T_world_cam: np.ndarray, X: np.ndarray | None = None,
+                   X_idx: np.ndarray | None = None) -> None:
+        """The 2D-2D reference frame: later frames are related to it by an essential matrix until the
+        parallax suffices, then it advances (``C_n = C_ref T_n``)."""
+        self._ref2d = obs
+        self._T_world_ref2d = T_world_cam.copy()
+        obs.ref2d_idx = np.arange(len(obs), dtype=np.int64)
+        self._mono_X = None if X is None else (X_idx, X)
+
+    def _pose_2d2d(self, obs: Observation, klt_prev_idx):
+        cfg = self.cfg
+        ref = getattr(self, "_ref2d", None)
+        t0 = time.perf_counter()
+        if ref is None or len(ref) < 8 or len(obs) < 8:
+            return None, 0
+        if cfg.association == "match":
+            i1, i2 = brute_force_match(ref.descriptors, obs.descriptors, self.binary, ratio=0.8,
+                                       max_distance=cfg.max_descriptor_distance if self.binary else None)
+            obs.point_ids[:] = -1
+        else:
+            r = obs.ref2d_idx if obs.ref2d_idx is not None else np.full(len(obs), -1)
+            i2 = np.flatnonzero(r >= 0)
+            i1 = r[i2]
+        self.timers["association"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        try:
+            if len(i1) < cfg.min_inliers:
+                return None, int(len(i1))
+            x1, x2 = ref.uv_undist[i1], obs.uv_undist[i2]
+            R, t, mask, status = essential_pose(x1, x2, self.K, cfg.essential_px, cfg.two_view_min_parallax_deg)
+            if R is None or mask.sum() < cfg.min_inliers:
+                return None, int(mask.sum())
+            advance = status == "ok"
+            if self.sensor != "mono":
+                z1, z2 = ref.depth[i1], obs.depth[i2]
+                both = mask & np.isfinite(z1) & np.isfinite(z2)
+                if both.sum() < 6:
+                    return None, int(both.sum())
+                Xp = self.camera.backproject(x1[both], z1[both])
+                Xc = self.camera.backproject(x2[both], z2[both])
+                diff = Xc - Xp @ R.T
+                if status == "ok":
+                    t_m = float(np.median(diff @ t)) * t  # scale of the unit translation from depth
+                else:  # translation unobservable from the images: take it straight from the depths
+                    t_m = np.median(diff, axis=0)
+                T_world_cam = self._T_world_ref2d @ inv_T(make_T(R, t_m))
+            else:
+                if status == "ok":
+                    t_m = self._mono_scale(ref, obs, i1, i2, mask, R, t)
+                    T_world_cam = self._T_world_ref2d @ inv_T(make_T(R, t_m))
+                else:
+                    # too little parallax for a translation: rotation from the images, position from
+                    # the constant-velocity model; the reference stays
+                    T_world_cam = self.motion_model.predict()
+                    T_world_cam[:3, :3] = self._T_world_ref2d[:3, :3] @ R.T
+            if advance or len(i1) < 0.5 * len(ref) or len(i1) < 4 * cfg.min_inliers:
+                X = getattr(self, "_pending_X", None)
+                self._set_ref2d(obs, T_world_cam, None if X is None else X[1], None if X is None else X[0])
+            self._pending_X = None
+            return T_world_cam, int(mask.sum())
+        finally:
+            self.timers["pose"] += time.perf_counter() - t0
+
+    def _mono_scale(self, ref: Observation, obs: Observation, i1, i2, mask, R, t) -> np.ndarray:
+        """Monocular 2D-2D translation with the relative scale: points triangulated from the previous
+        pair and from this pair, both in the reference camera frame, compared by the median ratio of
+        their distances (Scaramuzza & Fraundorfer, "Visual Odometry", RAM 2011, eq. (16))."""
+        T_cur_ref_unit = make_T(R, t)
+        idx = np.flatnonzero(mask)
+        X = triangulate(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
+        e1, za = reprojection_error(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
+        e2, zb = reprojection_error(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
+        good = (za > 0) & (zb > 0) & (e1 < 2.0) & (e2 < 2.0) & (parallax_deg(np.eye(4), inv_T(T_cur_ref_unit), X) > 0.2)
+        # fallback: the distance the motion model expects between the reference and this frame
+        T_pred = self.motion_model.predict()
+        s = float(np.linalg.norm(T_pred[:3, 3] - self._T_world_ref2d[:3, 3])) if T_pred is not None else 1.0
+        if self._mono_X is not None and good.sum() >= 8:
+            old_idx, old_X = self._mono_X
+            lookup = np.full(len(ref), -1, np.int64)
+            lookup[old_idx] = np.arange(len(old_idx))
+            j = lookup[i1[idx]]
+            common = good & (j >= 0)
+            if common.sum() >= 8:
+                ratio = np.linalg.norm(old_X[j[common]], axis=1) / np.linalg.norm(X[common], axis=1)
+                s = float(np.median(ratio))
+        if not np.isfinite(s) or s <= 0:
+            s = 1.0
+        Xs = X[good] * s
+        self._pending_X = (i2[idx[good]], Xs @ R.T + s * t)  # in the current frame, for the next pair
+        return s * t
+
+    # ------------------------------------------------------------------ keyframes and new points
+    def _make_keyframe(self, frame_index: int, timestamp: float, T_world_cam: np.ndarray, obs: Observation) -> KeyFrame:
+        return KeyFrame(
+            id=self.map.next_keyframe_id(), frame_index=frame_index, timestamp=timestamp,
+            T_world_cam=T_world_cam.copy(), uv=obs.uv.copy(), uv_undist=obs.uv_undist.copy(),
+            descriptors=None if obs.descriptors is None else obs.descriptors.copy(),
+            octave=obs.octave.copy(), depth=obs.depth.copy(), point_ids=obs.point_ids.copy(),
+            segment=self.segment, u_right=None if obs.u_right is None else obs.u_right.copy(),
+        )
+
+    def _insert_keyframe(self, frame: Frame, gray: np.ndarray, obs: Observation, T_world_cam: np.ndarray,
+                         new_points: bool = True) -> KeyFrame:
+        cfg = self.cfg
+        kf_id = self.map.next_keyframe_id()
+        if cfg.association == "track":
+            # top up the tracks with new corners away from the existing ones
+            mask = detect_mask(gray.shape, obs.uv, max(8, int(self.fcfg.cell_size // 2)))
+            new = self._detect(frame, gray, mask)
+            room = max(self.fcfg.n_features - len(obs), 0)  # keep the number of tracks bounded
+            if len(new) > room:
+                new = new.subset(np.unique(np.linspace(0, len(new) - 1, room).astype(np.int64)) if room else np.zeros(0, np.int64))
+            new.anchor_kf = np.full(len(new), kf_id, dtype=np.int64)
+            new.ref2d_idx = np.full(len(new), -1, dtype=np.int64)
+            if obs.ref2d_idx is None:
+                obs.ref2d_idx = np.full(len(obs), -1, dtype=np.int64)
+            new.anchor_idx = np.arange(len(obs), len(obs) + len(new), dtype=np.int64)
+            if obs.anchor_kf is None:
+                obs.anchor_kf = np.full(len(obs), -1, np.int64)
+                obs.anchor_idx = np.arange(len(obs), dtype=np.int64)
+            merged = Observation.concat(obs, new)
+            for name in ("uv", "uv_undist", "descriptors", "octave", "depth", "point_ids", "u_right",
+                         "anchor_kf", "anchor_idx", "ref2d_idx"):
+                setattr(obs, name, getattr(merged, name))
+        kf = self._make_keyframe(frame.index, frame.timestamp, T_world_cam, obs)
+        if new_points:
+            if self.sensor != "mono":
+                self._points_from_depth(kf, obs)
+            elif cfg.motion != "2d2d" or cfg.association == "track":
+                self._points_by_triangulation(kf, obs)
+        self.map.add_keyframe(kf)
+        if cfg.association == "match":
+            # the keyframe's fresh observations become the points' descriptors
+            has = kf.point_ids >= 0
+            if kf.descriptors is not None and self.map.points.descriptor is not None:
+                self.map.points.descriptor[kf.point_ids[has]] = kf.descriptors[has]
+        self.map.cull_points(cfg.cull_min_found_ratio)
+        local = self.map.local_keyframes(kf.id, cfg.local_keyframes)
+        if self.map.points.n_alive > cfg.max_map_points:
+            self.map.limit_points(cfg.max_map_points, local)
+            # ids changed: remap the live observation
+            kf_ids = kf.point_ids
+            obs.point_ids = kf_ids.copy()
+        self.ref_kf = kf.id
+        self.last_kf = kf.id
+        self._local_ids = None
+        self.frames_since_kf = 0
+        self._kf_ref_tracked = None
+        if self.on_keyframe is not None:
+            self.on_keyframe(kf)
+        return kf
+
+    def _points_from_depth(self, kf: KeyFrame, obs: Observation) -> None:
+        cand = np.flatnonzero((kf.point_ids < 0) & np.isfinite(kf.depth))
+        if len(cand) == 0:
+            return
+        cand = cand[np.argsort(kf.depth[cand], kind="stable")][: self.cfg.max_points_per_keyframe]
+        Xc = self.camera.backproject(kf.uv_undist[cand], kf.depth[cand])
+        Xw = Xc @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]
+        desc = None if kf.descriptors is None else kf.descriptors[cand]
+        ids = self.map.points.add(Xw, desc, kf.T_world_cam[:3, 3], kf.id,
+                                  np.power(self.scale_factor, kf.octave[cand].astype(float)), self.max_level_scale)
+        kf.point_ids[cand] = ids
+        obs.point_ids[cand] = ids
+
+    def _points_by_triangulation(self, kf: KeyFrame, obs: Observation) -> None:
+        """Monocular mapping: triangulate unmatched keypoints of the new keyframe with an earlier
+        keyframe (descriptor matches with the last keyframe, or KLT tracks with their birth keyframe),
+        keeping points in front of both views, with small reprojection error and enough parallax."""
+        cfg = self.cfg
+        if cfg.association == "match":
+            # the previous keyframes of this segment, newest first
+            olds = sorted((k for k in self.map.keyframes.values() if k.segment == kf.segment and k.id != kf.id),
+                          key=lambda k: -k.id)[: cfg.mono_triangulation_keyframes]
+            for old in olds:
+                a = np.flatnonzero(old.point_ids < 0)
+                b = np.flatnonzero(kf.point_ids < 0)
+                if len(a) < 8 or len(b) < 8:
+                    continue
+                i1, i2 = brute_force_match(old.descriptors[a], kf.descriptors[b], self.binary, ratio=0.8,
+                                           max_distance=cfg.max_descriptor_distance if self.binary else None)
+                self._triangulate_pairs(old, a[i1], kf, b[i2], obs)
+        else:
+            if kf.extra is None:
+                kf.extra = {}
+            anchors = obs.anchor_kf
+            cand = np.flatnonzero((kf.point_ids < 0) & (anchors >= 0) & (anchors != kf.id))
+            for a_id in np.unique(anchors[cand]):
+                if a_id not in self.map.keyframes:
+                    continue
+                sel = cand[anchors[cand] == a_id]
+                self._triangulate_pairs(self.map.keyframes[int(a_id)], obs.anchor_idx[sel], kf, sel, obs)
+
+    def _triangulate_pairs(self, kf1: KeyFrame, idx1: np.ndarray, kf2: KeyFrame, idx2: np.ndarray, obs: Observation) -> None:
+        if len(idx1) < 1:
+            return
+        ok1 = kf1.point_ids[idx1] < 0
+        idx1, idx2 = idx1[ok1], idx2[ok1]
+        if len(idx1) == 0:
+            return
+        T1, T2 = kf1.T_cam_world, kf2.T_cam_world
+        x1, x2 = kf1.uv_undist[idx1], kf2.uv_undist[idx2]
+        X = triangulate(T1, T2, self.K, x1, x2)
+        e1, z1 = reprojection_error(T1, self.K, X, x1)
+        e2, z2 = reprojection_error(T2, self.K, X, x2)
+        s1 = np.power(self.scale_factor, kf1.octave[idx1].astype(float))
+        s2 = np.power(self.scale_factor, kf2.octave[idx2].astype(float))
+        par = parallax_deg(kf1.T_world_cam, kf2.T_world_cam, X)
+        good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < 2.45 * s1) & (e2 < 2.45 * s2) \
+            & (par > self.cfg.mono_min_parallax_deg)
+        if not good.any():
+            return
+        # a keypoint index may appear twice (KLT duplicates): keep the first
+        _, first = np.unique(idx2[good], return_index=True)
+        g = np.flatnonzero(good)[first]
+        desc = None if kf2.descriptors is None else kf2.descriptors[idx2[g]]
+        ids = self.map.points.add(X[g], desc, kf2.T_world_cam[:3, 3], kf2.id,
+                                  np.power(self.scale_factor, kf2.octave[idx2[g]].astype(float)), self.max_level_scale)
+        kf2.point_ids[idx2[g]] = ids
+        obs.point_ids[idx2[g]] = ids
+        kf1.point_ids[idx1[g]] = ids
+        self.map.points.n_obs[ids] += 1

@@ -1,0 +1,122 @@
+"""The map: keyframes, map points (columnar store) and the covisibility graph.
+
+Covisibility (ORB-SLAM, Mur-Artal et al. 2015, sec. III-D): two keyframes are linked with a
+weight equal to the number of map points both observe.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from vslam.map.keyframe import KeyFrame
+from vslam.map.mappoint import MapPoint, MapPointStore
+
+log = logging.getLogger(__name__)
+
+
+class Map:
+    """Keyframes by id, the :class:`MapPointStore`, and covisibility weights."""
+
+    def __init__(self) -> None:
+        self.keyframes: dict[int, KeyFrame] = {}
+        self.points = MapPointStore()
+        self.covisibility: dict[int, dict[int, int]] = {}
+        self._next_kf_id = 0
+
+    # ------------------------------------------------------------------ keyframes
+    def next_keyframe_id(self) -> int:
+        return self._next_kf_id
+
+    def add_keyframe(self, kf: KeyFrame) -> None:
+        """Insert ``kf`` and link it in the covisibility graph to every keyframe sharing points."""
+        self.keyframes[kf.id] = kf
+        self._next_kf_id = max(self._next_kf_id, kf.id + 1)
+        ids = kf.observed_ids()
+        ids = ids[self.points.first_kf[ids] != kf.id]  # points created with this keyframe count it already
+        self.points.n_obs[ids] += 1
+        self.points.last_seen_kf[ids] = kf.id
+        self.covisibility[kf.id] = {}
+        self.update_covisibility(kf.id)
+
+    def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
+        kf = self.keyframes[kf_id]
+        ids = np.unique(kf.observed_ids())
+        links = self.covisibility.setdefault(kf_id, {})
+        for other in self.keyframes.values():
+            if other.id == kf_id or other.segment != kf.segment or other.bad:
+                continue
+            w = int(np.isin(other.observed_ids(), ids, assume_unique=False).sum())
+            if w >= min_weight:
+                links[other.id] = w
+                self.covisibility.setdefault(other.id, {})[kf_id] = w
+
+    def covisible(self, kf_id: int, n: int | None = None) -> list[int]:
+        """Keyframes linked to ``kf_id``, strongest first (at most ``n``)."""
+        links = self.covisibility.get(kf_id, {})
+        order = sorted(links, key=lambda k: -links[k])
+        return order if n is None else order[:n]
+
+    def local_keyframes(self, kf_id: int, n: int) -> list[int]:
+        """``kf_id`` and its ``n`` most covisible keyframes."""
+        return [kf_id] + self.covisible(kf_id, n)
+
+    def local_point_ids(self, kf_ids: list[int]) -> np.ndarray:
+        """Unique alive map points observed by the given keyframes."""
+        if not kf_ids:
+            return np.zeros(0, dtype=np.int64)
+        ids = np.concatenate([self.keyframes[k].observed_ids() for k in kf_ids])
+        ids = np.unique(ids)
+        return ids[self.points.alive[ids]]
+
+    # ------------------------------------------------------------------ points
+    def point(self, pid: int) -> MapPoint:
+        """A :class:`MapPoint` snapshot with its observations ``{keyframe id: keypoint index}``."""
+        mp = self.points.get(pid)
+        for kf in self.keyframes.values():
+            idx = np.flatnonzero(kf.point_ids == pid)
+            if len(idx):
+                mp.observations[kf.id] = int(idx[0])
+        return mp
+
+    def cull_points(self, min_found_ratio: float, min_visible: int = 6) -> int:
+        """Kill points that were predicted visible often but rarely matched (ORB-SLAM point culling)."""
+        n = len(self.points)
+        p = self.points
+        bad = p.alive[:n] & (p.visible[:n] >= min_visible) & (p.found[:n] < min_found_ratio * p.visible[:n])
+        if bad.any():
+            p.alive[:n][bad] = False
+        return int(bad.sum())
+
+    def limit_points(self, max_points: int, keep_kf_ids: list[int]) -> None:
+        """Keep memory flat: when over ``max_points``, drop the points last seen longest ago (outside
+        the local keyframes) and compact the store, remapping every keyframe's ``point_ids``."""
+        p = self.points
+        if p.n_alive <= max_points:
+            return
+        n = len(p)
+        protected = np.zeros(n, dtype=bool)
+        if keep_kf_ids:
+            protected[self.local_point_ids(keep_kf_ids)] = True
+        cand = np.flatnonzero(p.alive[:n] & ~protected)
+        excess = p.n_alive - max_points
+        if excess > 0 and len(cand):
+            order = cand[np.argsort(p.last_seen_kf[cand], kind="stable")]
+            p.alive[order[:excess]] = False
+        self.compact()
+
+    def compact(self) -> np.ndarray:
+        remap = self.points.compact()
+        for kf in self.keyframes.values():
+            pid = kf.point_ids
+            kf.point_ids = np.where(pid >= 0, remap[np.clip(pid, 0, len(remap) - 2)], -1)
+        return remap
+
+    # ------------------------------------------------------------------ stats
+    @property
+    def n_keyframes(self) -> int:
+        return len(self.keyframes)
+
+    @property
+    def n_points(self) -> int:
+        return self.points.n_alive

@@ -1,0 +1,175 @@
+"""Run a whole sequence through a :class:`~vslam.system.System` and write the results to a folder.
+
+Outputs (the contract of ``vslam run``):
+
+* ``trajectory.txt``: TUM format, ``T_world_cam`` of every tracked frame with the dataset's
+  timestamps. Written and flushed frame by frame, so an interrupted or crashed run keeps what it
+  had; rewritten at the end with the final (optimized) poses.
+* ``keyframes.txt``: the keyframe trajectory, TUM format.
+* ``stats.json``: counts, timings, loops, and ATE/RPE when ground truth is known.
+* ``config.yaml``: the fully resolved configuration.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from vslam.config import dump_config
+from vslam.eval.trajectory import Trajectory, format_tum_line, tum_rows_from_poses, write_tum
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    """What a run produced: the summary written to ``stats.json`` and the final trajectory."""
+
+    stats: dict
+    trajectory: Trajectory
+    output_dir: Path | None = None
+
+
+def _atomic_write_tum(path: Path, traj: Trajectory) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    write_tum(tmp, traj)
+    os.replace(tmp, path)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
+    os.replace(tmp, path)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serializable: {type(obj)}")
+
+
+def run_sequence(
+    system: Any,
+    frames: Iterable[Any],
+    total: int | None = None,
+    output_dir: str | Path | None = None,
+    config: Any = None,
+    ground_truth: Trajectory | None = None,
+    align: str = "se3",
+    progress: bool = True,
+    on_frame: Callable[[Any, Any], None] | None = None,
+    extra_stats: dict | None = None,
+) -> RunResult:
+    """Feed ``frames`` to ``system.track`` one by one and collect (and optionally write) the results.
+
+    Args:
+        system: a :class:`vslam.system.System` (anything with ``track``, ``finish``,
+            ``trajectory``, ``keyframe_trajectory`` and ``stats``).
+        frames: an iterable of :class:`~vslam.datasets.frame.Frame` (streamed, never materialized).
+        total: number of frames, for the progress bar.
+        output_dir: where to write the outputs; None writes nothing.
+        config: the resolved configuration, written as ``config.yaml``.
+        ground_truth: when given, ATE/RPE are computed and added to the stats.
+        align: ``se3`` or ``sim3`` (monocular) for the ATE.
+        on_frame: optional callback ``(frame, track_result)``, e.g. a live viewer.
+    """
+    from tqdm import tqdm
+
+    out = Path(output_dir) if output_dir is not None else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        if config is not None:
+            dump_config(config, out / "config.yaml")
+    traj_file = open(out / "trajectory.txt", "w") if out is not None else None
+    if traj_file is not None:
+        traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam)\n")
+        traj_file.flush()
+
+    n_frames = n_tracked = n_lost = 0
+    t_start = time.perf_counter()
+    error: str | None = None
+    bar = tqdm(total=total, desc="tracking", unit="frame", disable=not progress, file=sys.stderr,
+               dynamic_ncols=True, leave=False)
+    try:
+        for frame in frames:
+            result = system.track(frame)
+            n_frames += 1
+            if result.T_world_cam is not None:
+                n_tracked += 1
+                if traj_file is not None:
+                    row = tum_rows_from_poses(result.T_world_cam[None])[0]
+                    traj_file.write(format_tum_line(frame.timestamp, row))
+                    traj_file.flush()
+            elif result.state == "lost":
+                n_lost += 1
+            if on_frame is not None:
+                on_frame(frame, result)
+            bar.update(1)
+            if n_frames % 10 == 0:
+                bar.set_postfix(tracked=n_tracked, lost=n_lost, refresh=False)
+        system.finish()
+    except KeyboardInterrupt:
+        error = "interrupted"
+        raise
+    except Exception as exc:  # keep what we have, then re-raise
+        error = f"{type(exc).__name__}: {exc}"
+        raise
+    finally:
+        bar.close()
+        wall = time.perf_counter() - t_start
+        if traj_file is not None:
+            traj_file.close()
+        stats = {
+            "frames": n_frames,
+            "tracked": n_tracked,
+            "lost": n_lost,
+            "wall_s": round(wall, 3),
+            "fps": round(n_frames / wall, 2) if wall > 0 else 0.0,
+        }
+        try:
+            stats.update(system.stats())
+        except Exception:  # never lose the run summary because of a stats failure
+            log.exception("collecting system stats failed")
+        stats.setdefault("loops", [])
+        if extra_stats:
+            stats.update(extra_stats)
+        if error is not None:
+            stats["error"] = error
+        trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+        if error is None:
+            trajectory = system.trajectory()
+            if out is not None and len(trajectory):
+                _atomic_write_tum(out / "trajectory.txt", trajectory)
+            if out is not None:
+                kf = system.keyframe_trajectory()
+                write_tum(out / "keyframes.txt", kf)
+            if ground_truth is not None and len(trajectory) >= 3:
+                stats.update(_evaluate(trajectory, ground_truth, align))
+        if out is not None:
+            _write_json(out / "stats.json", stats)
+    return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
+
+
+def _evaluate(traj: Trajectory, gt: Trajectory, align: str) -> dict:
+    """ATE/RPE against ground truth, as in ``vslam eval`` (returns {} when they do not overlap)."""
+    from vslam.errors import VslamError
+    from vslam.eval import evaluate_trajectories
+
+    try:
+        res = evaluate_trajectories(traj, gt, align=align)
+    except VslamError as exc:
+        log.warning("evaluation against ground truth skipped: %s", exc)
+        return {}
+    d = res.to_dict()
+    return {k: d[k] for k in ("ate_rmse", "rpe_trans_rmse", "rpe_rot_deg_rmse", "matched_poses", "scale") if k in d}

@@ -1,0 +1,204 @@
+"""The SLAM system: wires features, frontend (tracking), map and (later) backend and loop closing.
+
+A streaming object (the DPVO style): feed frames one by one with :meth:`System.track`, then ask
+for :meth:`trajectory`, :meth:`keyframe_trajectory` and :meth:`stats`. Nothing reads ahead.
+
+Example:
+    >>> from vslam.system import System
+    >>> system = System(config, camera, sensor="rgbd")          # doctest: +SKIP
+    >>> for frame in dataset:                                    # doctest: +SKIP
+    ...     result = system.track(frame)
+    >>> system.finish(); traj = system.trajectory()              # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from vslam.datasets.frame import Frame
+from vslam.eval.trajectory import Trajectory
+from vslam.features.config import FeatureConfig
+from vslam.frontend.config import FrontendConfig
+from vslam.frontend.pose import inv_T
+from vslam.frontend.tracker import Tracker
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.keyframe import KeyFrame
+from vslam.map.map import Map
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrackResult:
+    """Outcome of one :meth:`System.track` call."""
+
+    frame_index: int
+    timestamp: float
+    T_world_cam: np.ndarray | None  # None when lost or still initializing
+    state: str  # "ok" | "lost" | "initializing"
+    is_keyframe: bool
+    n_inliers: int
+
+
+class System:
+    """Visual SLAM / odometry for one camera (``mono``, ``stereo`` or ``rgbd``).
+
+    Args:
+        config: the root :class:`vslam.config.Config` (its ``frontend`` and ``features`` fields are
+            used), or a :class:`FrontendConfig`, or None for defaults.
+        camera: intrinsics of the (left) images.
+        sensor: ``mono``, ``stereo`` or ``rgbd``.
+        features: a :class:`FeatureConfig` when ``config`` is not a root config.
+    """
+
+    def __init__(self, config: Any = None, camera: PinholeCamera | None = None, sensor: str = "mono",
+                 features: FeatureConfig | None = None) -> None:
+        if camera is None:
+            from vslam.errors import CalibrationError
+
+            raise CalibrationError("System needs the camera intrinsics (a PinholeCamera)")
+        if isinstance(config, FrontendConfig):
+            fcfg = config
+        else:
+            fcfg = getattr(config, "frontend", None) or FrontendConfig()
+        feat = features or getattr(config, "features", None) or FeatureConfig()
+        self.config = config
+        self.frontend_config = fcfg
+        self.feature_config = feat
+        self.camera = camera
+        self.sensor = sensor
+        self.map = Map()
+        self._kf_listeners: list[Callable[[KeyFrame], None]] = []
+        self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
+        self._init_backend(getattr(config, "backend", None), camera, sensor, feat)
+        # per tracked frame: (timestamp, reference keyframe id or -1, T_ref_cam or T_world_cam)
+        self._timestamps: list[float] = []
+        self._ref: list[int] = []
+        self._T_rel: list[np.ndarray] = []
+        self._n = {"frames": 0, "ok": 0, "lost": 0, "initializing": 0}
+        self._t_total = 0.0
+        self._finished = False
+
+    # ------------------------------------------------------------------ hooks
+    def add_keyframe_listener(self, callback: Callable[[KeyFrame], None]) -> None:
+        """Call ``callback(keyframe)`` after every keyframe insertion (local BA plugs in here)."""
+        self._kf_listeners.append(callback)
+
+    def _on_keyframe(self, kf: KeyFrame) -> None:
+        for cb in self._kf_listeners:
+            cb(kf)
+
+    # ------------------------------------------------------------------ backend (issue 5)
+    def _init_backend(self, backend_cfg: Any, camera: PinholeCamera, sensor: str, feat: FeatureConfig) -> None:
+        """``graph``: a :class:`LocalMapper` on the keyframe hook (local BA, culling, final BA);
+        ``ekf``: a :class:`FilterBackend` on every tracked pose. No backend without a root config."""
+        from vslam.backend.filter_backend import FilterBackend
+        from vslam.backend.local_mapping import LocalMapper
+
+        self._backend_cfg = backend_cfg
+        self._map_lock = threading.RLock()  # tracking holds it; realtime local mapping takes it to edit the map
+        self.local_mapper: LocalMapper | None = None
+        self.filter_backend: FilterBackend | None = None
+        if backend_cfg is None:
+            return
+        if backend_cfg.type == "ekf":
+            self.filter_backend = FilterBackend(backend_cfg.ekf, camera, self.map)
+        else:
+            self.local_mapper = LocalMapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock)
+            self.add_keyframe_listener(self.local_mapper.on_keyframe)
+
+    # ------------------------------------------------------------------ streaming
+    def track(self, frame: Frame) -> TrackResult:
+        """Track one frame; returns its pose (None when lost or initializing)."""
+        with self._map_lock:
+            t0 = time.perf_counter()
+            out = self.tracker.track(frame)
+            self._t_total += time.perf_counter() - t0
+            self._n["frames"] += 1
+            self._n[out.state] = self._n.get(out.state, 0) + 1
+            for ts, T in out.backfill:  # frames before a monocular initialization, posed afterwards
+                self._record(ts, T, None)
+            T_out = out.T_world_cam
+            if self.filter_backend is not None:  # EKF backend: the filtered pose replaces the measured one
+                T_out = self.filter_backend.filter(frame.timestamp, T_out, out.n_inliers, out.ref_keyframe)
+            if T_out is not None:
+                self._record(frame.timestamp, T_out, out.ref_keyframe)
+        if self.local_mapper is not None:  # deterministic local BA runs here, after the frame is recorded
+            self.local_mapper.after_frame()
+        return TrackResult(frame.index, frame.timestamp, T_out, out.state, out.is_keyframe, out.n_inliers)
+
+    def _record(self, timestamp: float, T_world_cam: np.ndarray, ref_kf: int | None) -> None:
+        kf = self.map.keyframes.get(ref_kf) if ref_kf is not None else None
+        if kf is not None:
+            self._ref.append(kf.id)
+            self._T_rel.append(inv_T(kf.T_world_cam) @ T_world_cam)
+        else:
+            self._ref.append(-1)
+            self._T_rel.append(T_world_cam.copy())
+        self._timestamps.append(timestamp)
+
+    def finish(self) -> None:
+        """End of input: flush pending local mapping, then the optional global BA (``backend.final_ba``)."""
+        if self._finished:
+            return
+        if self.local_mapper is not None:
+            self.local_mapper.finish()
+            if self._backend_cfg.final_ba:
+                self.local_mapper.global_ba()
+        self._finished = True
+
+    # ------------------------------------------------------------------ results
+    def trajectory(self) -> Trajectory:
+        """Every tracked frame, with its pose re-expressed through its reference keyframe's
+        current (possibly optimized) pose: ``T_world_cam = T_world_kf @ T_kf_cam``."""
+        if not self._timestamps:
+            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+        T = np.empty((len(self._timestamps), 4, 4))
+        for i, (r, Tr) in enumerate(zip(self._ref, self._T_rel)):
+            kf = self.map.keyframes.get(r) if r >= 0 else None
+            T[i] = kf.T_world_cam @ Tr if kf is not None else Tr
+        ts = np.asarray(self._timestamps)
+        order = np.argsort(ts, kind="stable")
+        ts, T = ts[order], T[order]
+        keep = np.ones(len(ts), bool)
+        keep[1:] = np.diff(ts) > 0
+        return Trajectory(ts[keep], T[keep])
+
+    def keyframe_trajectory(self) -> Trajectory:
+        kfs = sorted(self.map.keyframes.values(), key=lambda k: k.timestamp)
+        if not kfs:
+            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+        ts = np.array([k.timestamp for k in kfs])
+        keep = np.ones(len(ts), bool)
+        keep[1:] = np.diff(ts) > 0
+        return Trajectory(ts[keep], np.stack([k.T_world_cam for k in kfs])[keep])
+
+    def stats(self) -> dict:
+        n = max(self._n["frames"], 1)
+        stage_ms = {k: round(1000.0 * v / n, 3) for k, v in self.tracker.timers.items()}
+        stage_ms["total"] = round(1000.0 * self._t_total / n, 3)
+        backend: dict = {"type": "none"}
+        if self.local_mapper is not None:
+            backend = {"type": "graph", **self.local_mapper.stats()}
+            stage_ms["local_ba"] = backend["local_ba_ms_mean"]  # mean ms per local BA call (not per frame)
+        elif self.filter_backend is not None:
+            backend = self.filter_backend.stats()
+        return {
+            "keyframes": self.map.n_keyframes,
+            "map_points": self.map.n_points,
+            "loops": [],
+            "frames_ok": self._n.get("ok", 0),
+            "frames_lost": self._n.get("lost", 0),
+            "frames_initializing": self._n.get("initializing", 0),
+            "map_segments": self.tracker.segment + 1,
+            "stage_ms": stage_ms,
+            "sensor": self.sensor,
+            "association": self.frontend_config.association,
+            "motion": self.frontend_config.motion,
+            "backend": backend,
+        }
