@@ -14,13 +14,13 @@ from vslam.reconstruction.dense import TSDFConfig, TSDFFusion, frame_depth, fuse
 
 def test_rgbd_fusion_lies_on_the_true_surfaces(synthetic_frames, scene_distance, tmp_path):
     poses = [f.T_world_cam for f in synthetic_frames]
-    res = fuse_tsdf(synthetic_frames, poses, voxel_size=0.03, sdf_trunc=0.12, depth_max=4.5)
+    res = fuse_tsdf(synthetic_frames, poses, voxel_size=0.02, sdf_trunc=0.06, depth_max=4.0)
     assert res.n_frames == len(synthetic_frames)
     d = scene_distance(res.vertices)
-    # exact depth: the error is marching-cubes interpolation only (measured mean 0.7 mm, p95 2 mm)
+    # exact depth: the error is marching-cubes interpolation only (measured mean 1.6 mm, p99 1.2 cm)
     assert len(res.vertices) > 20000 and len(res.faces) > 30000
     assert d.mean() < 0.005, d.mean()
-    assert np.percentile(d, 99) < 0.02
+    assert np.percentile(d, 99) < 0.03
     dp = scene_distance(res.points)
     assert len(res.points) > 20000 and dp.mean() < 0.005
     # the whole 6 x 4 x 3 m room is seen
@@ -42,8 +42,8 @@ def test_noisy_rgbd_fusion_averages_the_noise(scene_distance, small_config):
     cfg = dataclasses.replace(small_config, depth_noise=0.01, missing_depth=0.2, stereo=False, seed=3)
     seq = SyntheticSequence(cfg)
     frames = [seq[i] for i in range(6)]  # consecutive views: the same walls seen 6 times
-    single = fuse_tsdf(frames[:1], voxel_size=0.02, sdf_trunc=0.08, point_cloud=False)
-    many = fuse_tsdf(frames, voxel_size=0.02, sdf_trunc=0.08, point_cloud=False)
+    single = fuse_tsdf(frames[:1], voxel_size=0.03, sdf_trunc=0.09, point_cloud=False)
+    many = fuse_tsdf(frames, voxel_size=0.03, sdf_trunc=0.09, point_cloud=False)
     e1, e6 = scene_distance(single.vertices).mean(), scene_distance(many.vertices).mean()
     assert e6 < 0.01, e6  # 1 cm depth noise, 20 % missing depth
     assert e6 < 0.8 * e1, (e1, e6)  # fusing more views averages the noise down
@@ -51,8 +51,7 @@ def test_noisy_rgbd_fusion_averages_the_noise(scene_distance, small_config):
 
 def test_stereo_fusion_lies_near_the_true_surfaces(synthetic_frames, scene_distance):
     frames = [f for f in synthetic_frames]
-    res = fuse_tsdf(frames, voxel_size=0.02, sdf_trunc=0.08, depth_source="stereo",
-                    depth_max=3.0)
+    res = fuse_tsdf(frames, voxel_size=0.03, sdf_trunc=0.09, depth_source="stereo", depth_max=3.0)
     d = scene_distance(res.vertices)
     # SGBM on a 320 px rig with fx B = 26 px m: sigma_z ~ 3 cm at 3 m (measured mean ~1.4 cm)
     assert len(res.vertices) > 10000

@@ -11,7 +11,7 @@ elements (skipped), and faces with any list types (triangulated as fans when not
 Example:
     >>> import numpy as np, tempfile, os
     >>> p = os.path.join(tempfile.mkdtemp(), "tri.ply")
-    >>> write_ply(p, np.eye(3, dtype=np.float32), faces=np.array([[0, 1, 2]]))
+    >>> _ = write_ply(p, np.eye(3, dtype=np.float32), faces=np.array([[0, 1, 2]]))
     >>> read_ply(p).faces
     array([[0, 1, 2]], dtype=int32)
 """
