@@ -199,6 +199,10 @@ class BackendConfig:
         redundant_ratio: fraction of a keyframe's points seen by >= 3 others that makes it redundant.
         stereo_far_baselines: stereo observations of points farther than this many baselines enter BA
             as monocular ones (ORB-SLAM2's close/far split at 35-40; 0 keeps every disparity).
+        fuse: before each local BA, match the window's points into the new keyframe and the new
+            keyframe's points into the window (ORB-SLAM2 SearchInNeighbors): adds observations and
+            merges duplicate points (needs descriptors, i.e. ``frontend.association=match``).
+        fuse_radius_px / fuse_max_descriptor_distance: search radius and descriptor threshold (Hamming).
     """
 
     type: Literal["graph", "ekf"] = "graph"
@@ -211,6 +215,9 @@ class BackendConfig:
     cull_keyframes: bool = False
     redundant_ratio: float = 0.9
     stereo_far_baselines: float = 35.0
+    fuse: bool = True
+    fuse_radius_px: float = 4.0
+    fuse_max_descriptor_distance: float = 50.0
     local: LocalBAConfig = field(default_factory=LocalBAConfig)
     global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)

@@ -76,6 +76,7 @@ class System:
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
         self._init_backend(getattr(config, "backend", None), camera, sensor, feat)
+        self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
         # per tracked frame: (timestamp, reference keyframe id or -1, T_ref_cam or T_world_cam)
         self._timestamps: list[float] = []
         self._ref: list[int] = []
@@ -111,6 +112,40 @@ class System:
         else:
             self.local_mapper = LocalMapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock)
             self.add_keyframe_listener(self.local_mapper.on_keyframe)
+            self.local_mapper.correction_listeners.append(self._on_local_ba_correction)
+
+    def _on_local_ba_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
+        """Local BA moved the newest keyframe: move the tracker's last poses with it (as for loops)."""
+        self._on_loop_correction(kf_id, T_world_kf_before, T_world_kf_after)
+
+    # ------------------------------------------------------------------ loop closing (issue 6)
+    def _init_loop(self, loop_cfg: Any, camera: PinholeCamera, sensor: str, feat: FeatureConfig) -> None:
+        """A :class:`LoopCloser` on the keyframe hook (``loop.enabled``) and a :class:`Relocalizer`
+        sharing its keyframe database (``self.relocalizer(obs)``, for the tracker when lost)."""
+        self.loop_closer = None
+        self.relocalizer = None
+        if loop_cfg is None or not loop_cfg.enabled:
+            return
+        from vslam.loop.closing import LoopCloser
+        from vslam.loop.relocalization import Relocalizer
+
+        gba = self.local_mapper.global_ba if self.local_mapper is not None else None
+        pg = getattr(self._backend_cfg, "pose_graph", None)
+        self.loop_closer = LoopCloser(self.map, camera, sensor, loop_cfg, scale_factor=feat.scale_factor,
+                                      lock=self._map_lock, global_ba=gba, pose_graph=pg)
+        self.loop_closer.correction_listeners.append(self._on_loop_correction)
+        self.add_keyframe_listener(self.loop_closer.on_keyframe)
+        self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
+                                       loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
+
+    def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
+        """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
+        D = T_world_kf_after @ inv_T(T_world_kf_before)
+        mm = self.tracker.motion_model
+        if mm.T_world_last is not None:
+            mm.T_world_last = D @ mm.T_world_last
+        if self.tracker.T_world_last_good is not None:
+            self.tracker.T_world_last_good = D @ self.tracker.T_world_last_good
 
     # ------------------------------------------------------------------ streaming
     def track(self, frame: Frame) -> TrackResult:
@@ -130,6 +165,8 @@ class System:
                 self._record(frame.timestamp, T_out, out.ref_keyframe)
         if self.local_mapper is not None:  # deterministic local BA runs here, after the frame is recorded
             self.local_mapper.after_frame()
+        if self.loop_closer is not None:  # deterministic loop closing, after local mapping
+            self.loop_closer.after_frame()
         return TrackResult(frame.index, frame.timestamp, T_out, out.state, out.is_keyframe, out.n_inliers)
 
     def _record(self, timestamp: float, T_world_cam: np.ndarray, ref_kf: int | None) -> None:
@@ -148,6 +185,9 @@ class System:
             return
         if self.local_mapper is not None:
             self.local_mapper.finish()
+        if self.loop_closer is not None:
+            self.loop_closer.finish()
+        if self.local_mapper is not None:
             if self._backend_cfg.final_ba:
                 self.local_mapper.global_ba()
         self._finished = True
@@ -191,7 +231,7 @@ class System:
         return {
             "keyframes": self.map.n_keyframes,
             "map_points": self.map.n_points,
-            "loops": [],
+            "loops": self.loop_closer.loop_list() if self.loop_closer is not None else [],
             "frames_ok": self._n.get("ok", 0),
             "frames_lost": self._n.get("lost", 0),
             "frames_initializing": self._n.get("initializing", 0),
@@ -201,4 +241,5 @@ class System:
             "association": self.frontend_config.association,
             "motion": self.frontend_config.motion,
             "backend": backend,
+            "loop_closing": self.loop_closer.stats() if self.loop_closer is not None else {"enabled": False},
         }

@@ -1,7 +1,7 @@
 """Local mapping (windowed BA + culling), final global BA and the EKF backend plugged into System.
 
 Synthetic RGB-D (exact ground truth, 1 grey-level pixel noise, 2 % depth noise): the frontend alone
-drifts ~13 mm over 60 frames; with local BA ~6 mm (measured, see the asserts).
+drifts ~18 mm over 60 frames; with local BA ~7 mm (measured, see the asserts).
 """
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from vslam.config import BackendConfig, Config
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
 from vslam.eval.trajectory import Trajectory
 from vslam.geometry.umeyama import umeyama
+from vslam.loop.config import LoopConfig
 from vslam.system import System
 
 
@@ -36,7 +37,7 @@ def _ate(est: Trajectory, gt: Trajectory) -> float:
 
 def _run(backend: BackendConfig, n_frames: int | None = None) -> tuple[System, Trajectory]:
     camera, frames, _ = _sequence()
-    system = System(Config(backend=backend), camera, "rgbd")
+    system = System(Config(backend=backend, loop=LoopConfig(enabled=False)), camera, "rgbd")
     for frame in frames[:n_frames]:
         system.track(frame)
     before = system.trajectory()
@@ -55,8 +56,8 @@ def test_local_ba_lowers_ate_on_synthetic_rgbd():
     ba, _ = _ba_run()
     ate_base, ate_ba = _ate(base.trajectory(), gt), _ate(ba.trajectory(), gt)
     assert len(ba.trajectory()) == len(gt)
-    assert ate_base > 0.011  # measured 0.0132
-    assert ate_ba < 0.0075  # measured 0.0055
+    assert ate_base > 0.012  # measured 0.0180
+    assert ate_ba < 0.009  # measured 0.0067
     assert ate_ba < 0.6 * ate_base
     st = ba.stats()
     assert st["backend"]["local_ba_calls"] == st["keyframes"] >= 5
@@ -72,13 +73,14 @@ def test_deterministic_mode_repeats_and_final_ba_runs():
     a = first.trajectory()
     np.testing.assert_array_equal(a.timestamps, before_final.timestamps)
     np.testing.assert_array_equal(a.T_world_cam, before_final.T_world_cam)
-    final = second.stats()["backend"]["final_ba"]
+    final = second.stats()["backend"]["global_ba"]
+    assert second.stats()["backend"]["global_ba_calls"] == 1
     assert final["keyframes"] == second.stats()["keyframes"]
     assert final["final_rms_px"] <= final["initial_rms_px"] + 1e-9
     # the first keyframe is the gauge: it never moves
     kf0 = second.map.keyframes[0]
     np.testing.assert_array_equal(kf0.T_world_cam, np.eye(4))
-    assert _ate(second.trajectory(), gt) < 0.0075
+    assert _ate(second.trajectory(), gt) < 0.009
 
 
 def test_ekf_backend_filters_every_tracked_pose():
@@ -89,7 +91,7 @@ def test_ekf_backend_filters_every_tracked_pose():
     st = system.stats()["backend"]
     assert st["type"] == "ekf" and st["updates"] == n
     assert 0 < st["mean_correction_m"] < 0.005  # the filter moves the poses, but only a little
-    assert _ate(traj, _sequence()[2]) < 0.008  # measured 0.0050 (the frontend alone: 0.0051)
+    assert _ate(traj, _sequence()[2]) < 0.008  # measured 0.0046 (the frontend alone: 0.0046)
     assert system.local_mapper is None
 
 
@@ -101,7 +103,7 @@ def test_realtime_mode_tracks_every_frame():
     assert len(traj) == n
     assert st["mode"] == "realtime" and st["failed"] == 0
     assert st["local_ba_calls"] + st["local_ba_skipped"] == system.stats()["keyframes"]
-    assert _ate(traj, _sequence()[2]) < 0.009  # not bit-reproducible: a bound (measured 0.0058)
+    assert _ate(traj, _sequence()[2]) < 0.009  # not bit-reproducible: a bound (measured 0.0049)
 
 
 def test_window_fixes_gauge_for_monocular():
@@ -118,15 +120,40 @@ def test_window_fixes_gauge_for_monocular():
 
 @pytest.mark.shared
 def test_kitti06_stereo_local_ba(shared_data):
-    """Real data: KITTI 06 (51 frames, stereo). Frontend alone 0.166 m ATE; with local BA 0.13 m
-    (the remaining error is a 0.8 % scale error of the frontend's stereo depth: Sim(3) ATE 0.04 m)."""
+    """Real data: KITTI 06 (51 frames, stereo). Frontend alone 0.165 m ATE; with local BA 0.12 m
+    (the remaining error is a 0.7 % scale error of the frontend's stereo depth: Sim(3) ATE 0.03 m).
+    The 0.06 m goal is not reached; this asserts what is achieved."""
     from vslam.datasets import open_dataset
 
     ds = open_dataset(shared_data / "kitti_odometry" / "sequences" / "06", sensor="stereo")
-    system = System(Config(), ds.camera, "stereo")
+    system = System(Config(loop=LoopConfig(enabled=False)), ds.camera, "stereo")
     for frame in ds:
         system.track(frame)
     system.finish()
     traj = system.trajectory()
     assert len(traj) == 51
     assert _ate(traj, ds.ground_truth()) < 0.145
+
+
+def test_culled_keyframe_follows_its_parent():
+    """A keyframe flagged bad (KeyFrameCulling) keeps a pose: it moves rigidly with its parent, and so
+    do the frames that reference it in System.trajectory()."""
+    system, _ = _run(BackendConfig(), 30)
+    mapper = system.local_mapper
+    ids = sorted(system.map.keyframes)
+    victim = system.map.keyframes[ids[len(ids) // 2]]
+    before = system.trajectory()
+    mapper._set_bad(victim)
+    assert victim.bad and mapper.counts["culled_keyframes"] == 1
+    assert victim.id not in system.map.covisibility.get(victim.extra["parent"], {})
+    parent = system.map.keyframes[victim.extra["parent"]]
+    T_parent_victim = np.linalg.inv(parent.T_world_cam) @ victim.T_world_cam
+    shift = np.eye(4)
+    shift[:3, 3] = [0.1, 0.0, 0.0]
+    parent.T_world_cam = shift @ parent.T_world_cam
+    mapper._update_bad_keyframes()
+    np.testing.assert_allclose(victim.T_world_cam, parent.T_world_cam @ T_parent_victim, atol=1e-12)
+    after = system.trajectory()
+    moved = np.linalg.norm(after.positions - before.positions, axis=1)
+    assert np.all((np.abs(moved) < 1e-9) | (np.abs(moved - 0.1) < 1e-9))
+    assert np.sum(np.abs(moved - 0.1) < 1e-9) >= 1

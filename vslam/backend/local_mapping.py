@@ -6,6 +6,9 @@ Sec. VI-B):
 1. **Window.** The new keyframe, the ``window_size`` most recent keyframes of its map segment and
    its ``covisible_keyframes`` strongest covisibility neighbours (links to non-adjacent keyframes)
    are optimized, with every live map point they observe.
+1b. **Fuse** (``fuse``, needs descriptors): the window's points are projected into the new
+   keyframe and the new keyframe's points into the window; chi-square-checked descriptor matches add
+   observations or merge duplicate points (ORB-SLAM2 SearchInNeighbors), so keyframes share points.
 2. **Gauge.** Keyframes outside the window that observe those points enter the problem with their
    poses held constant; the first keyframe of the segment is always constant. Monocular problems
    hold at least two keyframes constant so the scale is fixed too.
@@ -30,7 +33,6 @@ Example:
 """
 from __future__ import annotations
 
-import contextlib
 import logging
 import queue
 import threading
@@ -64,12 +66,16 @@ class LocalMappingConfig:
     cull_keyframes: bool = False
     redundant_ratio: float = 0.9
     stereo_far_baselines: float = 35.0
+    fuse: bool = True
+    fuse_radius_px: float = 4.0
+    fuse_max_descriptor_distance: float = 50.0
 
     @classmethod
     def from_backend(cls, backend: Any) -> "LocalMappingConfig":
         """Build from a :class:`vslam.config.BackendConfig` (missing fields keep their defaults)."""
         names = ("covisible_keyframes", "max_fixed_keyframes", "cull_min_observations", "cull_keyframes",
-                 "redundant_ratio", "stereo_far_baselines")
+                 "redundant_ratio", "stereo_far_baselines",
+                 "fuse", "fuse_radius_px", "fuse_max_descriptor_distance")
         kw = {n: getattr(backend, n) for n in names if hasattr(backend, n)}
         return cls(local_ba=backend.local_ba, realtime=backend.mode == "realtime", local=backend.local,
                    global_ba=backend.global_ba, **kw)
@@ -119,10 +125,14 @@ class LocalMapper:
         self._thread: threading.Thread | None = None
         self._stop = False
         self._times: list[float] = []
+        self._solve_times: list[float] = []
         self._culled_upto: dict[int, int] = {}
-        self.counts = {"local_ba_calls": 0, "local_ba_skipped": 0, "outlier_observations": 0,
+        self.counts = {"local_ba_calls": 0, "local_ba_skipped": 0, "outlier_observations": 0, "fused_points": 0,
                        "culled_points": 0, "culled_keyframes": 0, "failed": 0}
         self.global_ba_result: dict | None = None
+        # called as ``cb(kf_id, T_world_kf_before, T_world_kf_after)`` when the newest keyframe moves
+        # (System re-anchors the tracker's motion model on it, ORB-SLAM's UpdateLastFrame)
+        self.correction_listeners: list = []
 
     # ------------------------------------------------------------------ feeding
     def on_keyframe(self, kf: KeyFrame) -> None:
@@ -143,6 +153,12 @@ class LocalMapper:
             self.process(self._pending.pop(0))
 
     def _worker(self) -> None:
+        try:  # Linux: let the tracking thread win the CPU when the cores are busy
+            import os
+
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+        except (AttributeError, OSError):
+            pass
         while True:
             kf_id = self._queue.get()
             if kf_id is None:
@@ -177,6 +193,8 @@ class LocalMapper:
         """Windowed BA around keyframe ``kf_id``, write-back and culling."""
         t0 = time.perf_counter()
         with self.lock:
+            if self.config.fuse:
+                self._fuse_neighbours(kf_id)
             built = self._build_local(kf_id)
         if built is None:
             return None
@@ -194,6 +212,7 @@ class LocalMapper:
                 self._cull_keyframes(kf_id)
             self._update_bad_keyframes()
         self._times.append(time.perf_counter() - t0)
+        self._solve_times.append(result.time_s)
         self.counts["local_ba_calls"] += 1
         LOG.debug("local BA kf %d: %d kfs (%d fixed), %d pts, rms %.2f -> %.2f px, %.0f ms", kf_id,
                   problem.num_keyframes, len(ctx.fixed), problem.num_points, result.initial_rms_px,
@@ -301,6 +320,98 @@ class LocalMapper:
         return problem, _Context(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
                                  new_kf=new_kf)
 
+    # ------------------------------------------------------------------ fusion (SearchInNeighbors)
+    def _fuse_neighbours(self, kf_id: int) -> None:
+        """ORB-SLAM2 ``SearchInNeighbors`` (Mur-Artal & Tardos 2017, Sec. VI-B): project the window
+        keyframes' points into the new keyframe and the new keyframe's points into the window
+        keyframes; a descriptor match whose reprojection (and disparity) error passes the chi-square
+        test adds the observation, or fuses two points that are one (the one with fewer
+        observations is replaced everywhere). This links keyframes through shared points, which is
+        what gives local BA its constraints."""
+        kf = self.map.keyframes.get(kf_id)
+        if kf is None or kf.bad or kf.descriptors is None or self.map.points.descriptor is None:
+            return
+        window, _ = self._window(kf)
+        neighbours = [self.map.keyframes[k] for k in window if k != kf_id]
+        if not neighbours:
+            return
+        store = self.map.points
+        remap = np.arange(len(store) + 1, dtype=np.int64)
+        remap[-1] = -1
+        # neighbours' points -> new keyframe
+        pts = self.map.local_point_ids([k.id for k in neighbours])
+        n_fused = self._fuse_into(kf, pts, remap)
+        # new keyframe's points -> each neighbour
+        own = kf.observed_ids()
+        own = np.unique(own[store.alive[own]])
+        for nb in neighbours:
+            n_fused += self._fuse_into(nb, own, remap)
+        if n_fused:
+            moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
+            # follow chains (a -> b -> c) to the final survivor
+            for _ in range(4):
+                remap[moved] = remap[remap[moved]]
+            for k in self.map.keyframes.values():
+                pid = k.point_ids
+                k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+        self.map.update_covisibility(kf_id)
+        self.counts["fused_points"] = self.counts.get("fused_points", 0) + n_fused
+
+    def _fuse_into(self, kf: KeyFrame, pts: np.ndarray, remap: np.ndarray) -> int:
+        """Match points ``pts`` into keyframe ``kf``; returns the number of points fused away."""
+        from vslam.frontend.local_map import guided_match, project_local_points
+
+        store = self.map.points
+        pts = pts[store.alive[pts]]
+        if len(pts) == 0 or len(kf.uv_undist) == 0:
+            return 0
+        pts = np.setdiff1d(pts, kf.point_ids[kf.point_ids >= 0])
+        vis, uv, z = project_local_points(store, pts, kf.T_cam_world, self.camera)
+        if len(vis) == 0:
+            return 0
+        binary = kf.descriptors.dtype == np.uint8
+        m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fuse_radius_px,
+                               binary, self.config.fuse_max_descriptor_distance if binary else None, ratio=1.0)
+        if len(m) == 0:
+            return 0
+        p, kp, zp = vis[m], k, z[m]
+        sigma2 = np.power(self.scale_factor, 2.0 * kf.octave[kp].astype(float))
+        chi2 = np.sum((uv[m] - kf.uv_undist[kp]) ** 2, axis=1) / sigma2
+        thr = np.full(len(p), self.config.local.chi2_mono)
+        if self.sensor != "mono" and kf.u_right is not None:
+            if self.sensor == "stereo":
+                bf, u0 = self.camera.fx * float(self.camera.baseline), kf.uv[kp, 0]
+            else:
+                bf, u0 = self.camera.fx * self.config.local.rgbd_virtual_baseline, kf.uv_undist[kp, 0]
+            disp = u0 - kf.u_right[kp]
+            has = np.isfinite(disp)
+            chi2 = chi2 + np.where(has, (np.where(has, disp, 0.0) - bf / zp) ** 2, 0.0) / sigma2
+            thr = np.where(has, self.config.local.chi2_stereo, thr)
+        ok = chi2 <= thr
+        p, kp = p[ok], kp[ok]
+        cur = kf.point_ids[kp]
+        # keypoint free (or its point is dead): a new observation
+        free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
+        kf.point_ids[kp[free]] = p[free]
+        np.add.at(store.n_obs, p[free], 1)
+        # keypoint with another live point: the two are the same point; keep the better observed one
+        dup = ~free & (cur != p)
+        a, b = p[dup], cur[dup]
+        a, b = remap[a], remap[b]  # already fused earlier in this pass
+        keep_a = store.n_obs[a] >= store.n_obs[b]
+        winner, loser = np.where(keep_a, a, b), np.where(keep_a, b, a)
+        sel = winner != loser
+        winner, loser = winner[sel], loser[sel]
+        _, first = np.unique(loser, return_index=True)
+        winner, loser = winner[first], loser[first]
+        if len(loser) == 0:
+            return 0
+        remap[loser] = winner
+        np.add.at(store.n_obs, winner, store.n_obs[loser])
+        store.alive[loser] = False
+        store.n_obs[loser] = 0
+        return int(len(loser))
+
     # ------------------------------------------------------------------ write-back and culling
     def _apply(self, problem: BAProblem, result: BAResult, ctx: _Context) -> None:
         """Poses, points and outlier observations back into the map (under the lock)."""
@@ -309,13 +420,20 @@ class LocalMapper:
             LOG.info("map compacted during local BA: result dropped")
             return
         fixed = np.isin(result.kf_ids, ctx.fixed)
+        moved = None
         for kid, T, f in zip(result.kf_ids.tolist(), result.T_world_cam, fixed):
             kf = self.map.keyframes.get(kid)
             if kf is not None and not f and np.all(np.isfinite(T)):
+                if kid == self._newest_kf():
+                    moved = (kid, kf.T_world_cam.copy(), T.copy())
                 kf.T_world_cam = T.copy()
+        if moved is not None:
+            for cb in self.correction_listeners:
+                cb(*moved)
         alive = store.alive[result.pt_ids]
         good_X = alive & np.all(np.isfinite(result.X_world), axis=1)
         store.position[result.pt_ids[good_X]] = result.X_world[good_X]
+        self._update_normals(problem, result, good_X)
         out = ~result.inlier_mask
         if not np.any(out):
             return
@@ -335,10 +453,43 @@ class LocalMapper:
             np.subtract.at(store.n_obs, r, 1)
             self.counts["outlier_observations"] += len(r)
 
+    def _update_normals(self, problem: BAProblem, result: BAResult, good: np.ndarray) -> None:
+        """ORB-SLAM's UpdateNormalAndDepth after the points moved: the viewing direction is the mean
+        unit ray from the observing keyframes, the distance range is rescaled to the new distance
+        from one observing keyframe (the tracker's visibility test uses both)."""
+        store = self.map.points
+        pt_row = problem.pt_index(problem.obs_pt)
+        kf_row = problem.kf_index(problem.obs_kf)
+        T = result.T_world_cam
+        X = result.X_world[pt_row]
+        ray = X - T[kf_row, :3, 3]
+        dist = np.linalg.norm(ray, axis=1)
+        unit = ray / np.maximum(dist, 1e-12)[:, None]
+        acc = np.zeros((problem.num_points, 3))
+        np.add.at(acc, pt_row, unit)
+        norm = np.linalg.norm(acc, axis=1)
+        ok = good & (norm > 1e-9)
+        ids = problem.pt_ids[ok]
+        store.normal[ids] = acc[ok] / norm[ok, None]
+        # distance range from the last observation of each point (scale-invariance, ORB-SLAM sec. III-C)
+        last = np.full(problem.num_points, -1, np.int64)
+        last[pt_row] = np.arange(len(pt_row))
+        has = ok & (last >= 0)
+        o = last[has]
+        ids = problem.pt_ids[has]
+        old_max, old_min = store.max_distance[ids], store.min_distance[ids]
+        ratio = np.where((old_min > 0) & np.isfinite(old_max), old_max / np.maximum(old_min, 1e-12), 1.0)
+        new_max = dist[o] * problem.obs_sigma[o]
+        store.max_distance[ids] = new_max
+        store.min_distance[ids] = new_max / np.maximum(ratio, 1.0)
+
+    def _newest_kf(self) -> int:
+        return max(self.map.keyframes) if self.map.keyframes else -1
+
     def _cull_points(self, kf_id: int) -> None:
-        """Points without observations die; so do recent points (created 3 keyframes ago or less, in
-        this segment) that fewer than ``cull_min_observations`` keyframes observe (ORB-SLAM2
-        MapPointCulling, with the keyframe count as the age)."""
+        """Points without observations die; so do points born two keyframes ago (in this segment)
+        that fewer than ``cull_min_observations`` keyframes observe (ORB-SLAM2 MapPointCulling, with
+        the keyframe count as the age; each point is judged once)."""
         store = self.map.points
         n = len(store)
         if n == 0:
@@ -446,6 +597,7 @@ class LocalMapper:
                 return None
             self._apply(problem, result, ctx)
             self._update_bad_keyframes()
+        self.counts["global_ba_calls"] = self.counts.get("global_ba_calls", 0) + 1
         self.global_ba_result = {
             "keyframes": problem.num_keyframes, "points": problem.num_points,
             "observations": problem.num_observations, "initial_rms_px": round(result.initial_rms_px, 4),
@@ -463,11 +615,8 @@ class LocalMapper:
         out["local_ba_ms_mean"] = round(1e3 * float(t.mean()), 2) if len(t) else 0.0
         out["local_ba_ms_median"] = round(1e3 * float(np.median(t)), 2) if len(t) else 0.0
         out["local_ba_ms_total"] = round(1e3 * float(t.sum()), 1)
+        out["local_ba_solver_ms_mean"] = round(1e3 * float(np.mean(self._solve_times)), 2) if self._solve_times else 0.0
         if self.global_ba_result is not None:
-            out["final_ba"] = self.global_ba_result
+            out["global_ba"] = self.global_ba_result  # the last one (final_ba, or a loop closure's)
         return out
 
-
-def null_lock() -> contextlib.AbstractContextManager:
-    """A do-nothing context manager (deterministic mode needs no map lock)."""
-    return contextlib.nullcontext()

@@ -16,6 +16,7 @@ Example:
 """
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 from typing import Protocol
@@ -161,6 +162,7 @@ class _Orientation:
         self.radius = r
         dy = np.arange(-r, r + 1)
         self.dy = dy.astype(np.int64)
+        self.dyf = dy.astype(np.float64)
         # Half-widths of the disc rows, made symmetric in u and v like OpenCV's ORB, so the angles
         # agree with cv2.ORB to ~0.01 degree (checked in the tests).
         half = np.zeros(r + 2, np.int64)
@@ -185,22 +187,36 @@ class _Orientation:
         ii = integral if integral is not None else cv2.integral(img, sdepth=cv2.CV_32S)
         f = ii.reshape(-1)
         w1 = ii.shape[1]
-        d = self.dy[None, :]
-        u = self.umax[None, :]
-        xc, yc = x[:, None], y[:, None]
-        # rows y+d, columns [x-u, x+u]  (integral index: row r -> r, col c -> c, exclusive end +1)
-        r0 = (yc + d) * w1
-        r1 = r0 + w1
-        lo, hi = xc - u, xc + u + 1
-        rows = f[r1 + hi] - f[r1 + lo] - f[r0 + hi] + f[r0 + lo]
-        # columns x+d, rows [y-u, y+u]
-        c0 = xc + d
-        t, btm = (yc - u) * w1, (yc + u + 1) * w1
-        cols = f[btm + c0 + 1] - f[btm + c0] - f[t + c0 + 1] + f[t + c0]
-        m01 = rows.astype(np.int64) @ self.dy  # segment sums fit int32; accumulate in int64
-        m10 = cols.astype(np.int64) @ self.dy
-        ang = np.degrees(np.arctan2(m01.astype(np.float64), m10.astype(np.float64)))
+        d, u = self.dy, self.umax
+        # one flat base index per keypoint plus per-row constant offsets (row y+d, columns
+        # [x-u, x+u] for m01; column x+d, rows [y-u, y+u] for m10; integral index is exclusive)
+        k = (np.asarray(y, np.int64) * w1 + np.asarray(x, np.int64))[:, None]
+        r0, r1 = d * w1, (d + 1) * w1
+        rows = f[k + (r1 + u + 1)] - f[k + (r1 - u)] - f[k + (r0 + u + 1)] + f[k + (r0 - u)]
+        t, btm = -u * w1, (u + 1) * w1
+        cols = f[k + (btm + d + 1)] - f[k + (btm + d)] - f[k + (t + d + 1)] + f[k + (t + d)]
+        # segment sums fit int32; the moments (< 2^31 * 31^2) are exact in float64
+        m01 = rows.astype(np.float64) @ self.dyf
+        m10 = cols.astype(np.float64) @ self.dyf
+        ang = np.degrees(np.arctan2(m01, m10))
         return np.mod(ang, 360.0).astype(np.float32)
+
+
+def _keypoints(x: np.ndarray, y: np.ndarray, angle: np.ndarray, size: float) -> list:
+    """``cv2.KeyPoint`` list at ``(x, y)`` with ``angle`` (degrees), octave 0 and ``class_id`` = input
+    index (built by ``map``, the fastest way to make many of them from Python)."""
+    n = len(x)
+    return list(map(cv2.KeyPoint, np.asarray(x, np.float64).tolist(), np.asarray(y, np.float64).tolist(),
+                    itertools.repeat(size, n), np.asarray(angle, np.float64).tolist(),
+                    itertools.repeat(0.0, n), itertools.repeat(0, n), range(n)))
+
+
+def _survivors(kps_out: list, n_in: int) -> np.ndarray:
+    """Input indices (``class_id``) of the keypoints ``cv2.ORB.compute`` kept. ORB only drops points
+    (border filter, order-preserving), so when none were dropped they are ``arange(n_in)``."""
+    if len(kps_out) == n_in:
+        return np.arange(n_in, dtype=np.int64)
+    return np.array([k.class_id for k in kps_out], np.int64)
 
 
 def _features_from_keypoints(kps, desc, binary: bool, scale_factor: float, dim: int,
@@ -340,12 +356,11 @@ class OrbGridDetector:
                 continue
             x, y, score = cand
             ang = self.orientation(levels[lvl], x, y)
-            kps = [cv2.KeyPoint(u, v, 31.0, a, 0.0, 0, i)
-                   for i, (u, v, a) in enumerate(zip(x.tolist(), y.tolist(), ang.tolist()))]
+            kps = _keypoints(x, y, ang, float(c.patch_size))
             kps_out, desc = self.orb.compute(levels[lvl], kps)
             if desc is None or not kps_out:
                 continue
-            ids = np.array([k.class_id for k in kps_out], np.int64)  # survivors, in input order
+            ids = _survivors(kps_out, len(kps))
             hl, wl = levels[lvl].shape
             # pixel-centre-correct level-0 position: x0 = (x + 0.5) * W / W_l - 0.5 (a bias of
             # up to (s - 1) / 2 px otherwise, which does not cancel under rotation or zoom)

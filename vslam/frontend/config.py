@@ -35,10 +35,12 @@ class FrontendConfig:
     # --- pose estimation
     pnp_reproj_px: float = 3.0  # RANSAC / inlier threshold in pixels
     pnp_iterations: int = 100
+    pose_from_prediction: bool = False  # skip RANSAC PnP when the robust refinement from the motion prediction holds
     align_inlier_m: float = 0.03  # 3D-3D RANSAC threshold at 1 m depth (scaled with depth^2 for RGB-D noise)
     min_inliers: int = 20  # fewer inliers than this means the frame is lost
     essential_px: float = 1.0  # 2D-2D RANSAC threshold in pixels
-    two_view_min_parallax_deg: float = 0.3  # 2d2d: below this the reference frame is kept (translation unobservable)
+    two_view_depth_scale_only: bool = False  # 2d2d with depth: True keeps the essential matrix's translation direction and takes only its scale from depth
+    two_view_min_parallax_deg: float = 1.0  # 2d2d: below this the reference frame is kept (translation unobservable)
 
     # --- association
     search_radius_px: float = 12.0  # guided matching radius around the predicted projection
@@ -46,7 +48,8 @@ class FrontendConfig:
     max_descriptor_distance: float = 64.0  # Hamming (ORB); float descriptors use ratio only
     match_ratio: float = 0.9  # best/second-best ratio in guided matching
     klt_min_tracks: int = 300  # re-detect when fewer KLT tracks survive
-    klt_window: int = 21
+    klt_max_tracks: int = 1000  # re-detection tops the tracks up to this many
+    klt_window: int = 15
     klt_levels: int = 3
 
     # --- keyframes (ORB-SLAM style: track-quality and time based)
@@ -54,7 +57,6 @@ class FrontendConfig:
     kf_min_frames: int = 0
     kf_tracked_ratio: float = 0.75  # insert when fewer than this ratio of the reference keyframe's points are tracked
     kf_tracked_ratio_mono: float = 0.7  # the same for monocular (ORB-SLAM's thRefRatio)
-    kf_min_inliers_ratio: float = 0.0
     kf_translation_m: float = 0.0  # insert when moved farther than this from the reference keyframe (0: off)
 
     # --- local map

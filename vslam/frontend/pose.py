@@ -96,6 +96,7 @@ def refine_pose(
     has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
     ur = np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0)
     inl = np.ones(n, dtype=bool)
+    zero = np.zeros(n)
     delta_mono, delta_st = np.sqrt(CHI2_2DOF), np.sqrt(CHI2_3DOF)
     for rnd in range(rounds):
         for _ in range(iterations):
@@ -104,43 +105,35 @@ def refine_pose(
             iz = 1.0 / z
             u_hat = fx * x * iz + cx
             v_hat = fy * y * iz + cy
-            r = np.empty((n, 3))
-            r[:, 0] = u_hat - uv[:, 0]
-            r[:, 1] = v_hat - uv[:, 1]
-            r[:, 2] = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
-            # J = d(u, v, u_r)/d(xi) for T <- exp(xi) T: d(proj)/dXc @ [I, -[Xc]x], written out
-            J = np.zeros((n, 3, 6))
+            ru = u_hat - uv[:, 0]
+            rv = v_hat - uv[:, 1]
+            rs = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
+            # J = d(u, v, u_r)/d(xi) for T <- exp(xi) T: d(proj)/dXc @ [I, -[Xc]x], written out;
+            # stored transposed (6, 3, n) so that H = J^T W J is a single BLAS product
             a = fx * iz
             b = -fx * x * iz * iz
             c = fy * iz
             d = -fy * y * iz * iz
-            J[:, 0, 0] = a
-            J[:, 0, 2] = b
-            J[:, 0, 3] = b * y
-            J[:, 0, 4] = a * z - b * x
-            J[:, 0, 5] = -a * y
-            J[:, 1, 1] = c
-            J[:, 1, 2] = d
-            J[:, 1, 3] = -c * z + d * y
-            J[:, 1, 4] = -d * x
-            J[:, 1, 5] = c * x
             b2 = b + bf * iz * iz
-            J[:, 2, 0] = a
-            J[:, 2, 2] = b2
-            J[:, 2, 3] = b2 * y
-            J[:, 2, 4] = a * z - b2 * x
-            J[:, 2, 5] = -a * y
-            J[:, 2, :] *= has_r[:, None]
-            e2 = info * (r * r).sum(axis=1)
+            e2 = info * (ru * ru + rv * rv + rs * rs)
             delta = np.where(has_r, delta_st, delta_mono)
             e = np.sqrt(e2)
             w = info * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
             w = np.where(inl & (Xc[:, 2] > 0), w, 0.0)
             sw = np.sqrt(w)
-            Jr = (J * sw[:, None, None]).reshape(-1, 6)
-            rr = (r * sw[:, None]).reshape(-1)
-            H = Jr.T @ Jr
-            g = Jr.T @ rr
+            swr = sw * has_r
+            az = a * z
+            J = np.empty((6, 3, n))
+            J[:, 0] = (a, zero, b, b * y, az - b * x, -a * y)
+            J[:, 1] = (zero, c, d, -c * z + d * y, -d * x, c * x)
+            J[:, 2] = (a, zero, b2, b2 * y, az - b2 * x, -a * y)
+            J[:, 0] *= sw
+            J[:, 1] *= sw
+            J[:, 2] *= swr
+            Jr = J.reshape(6, -1)  # (6, 3n), residual order (u_1..u_n, v_1..v_n, ur_1..ur_n)
+            rr = np.concatenate([ru * sw, rv * sw, rs * swr])
+            H = Jr @ Jr.T
+            g = Jr @ rr
             try:
                 dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:

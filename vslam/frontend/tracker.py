@@ -164,6 +164,8 @@ class Tracker:
                     uv, ok = uv2, ok2
             klt_prev_idx = np.flatnonzero(ok)
             obs = prev.subset(klt_prev_idx)
+            if obs.u_right is not None:  # carry the disparity (the stereo search starts from it)
+                obs.u_right = uv[ok][:, 0] - (obs.uv[:, 0] - obs.u_right)
             obs.uv = uv[ok]
             obs.uv_undist = self.camera.undistort_points(obs.uv)
             # a point id dropped from the map stays dropped
@@ -177,6 +179,8 @@ class Tracker:
 
     def _detect(self, frame: Frame, gray: np.ndarray, mask: np.ndarray | None = None) -> Observation:
         feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
+        if self.cfg.association == "track" and len(feats) > self.cfg.klt_max_tracks:
+            feats = feats.subset(np.unique(np.linspace(0, len(feats) - 1, self.cfg.klt_max_tracks).astype(np.int64)))
         n = len(feats)
         uv = np.asarray(feats.uv, dtype=float).reshape(-1, 2)
         obs = Observation(
@@ -445,33 +449,59 @@ class Tracker:
             obs.point_ids[:] = -1
             tree = cKDTree(obs.uv_undist) if len(obs) else None
             radius = cfg.search_radius_lost_px if relocalize else cfg.search_radius_px
-            vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw_pred, self.camera)
-            m, k = self._guided(vis_ids, proj, obs, radius, tree)
+            # first pass: the previous frame's map points (TrackWithMotionModel); the rest of the
+            # local map follows at the refined pose
+            first = np.zeros(0, np.int64)
+            if not relocalize and self.prev is not None and len(self.prev):
+                first = self.prev.point_ids[self.prev.point_ids >= 0]
+                first = first[pts.alive[first]]
+            m = np.zeros(0, np.int64)
+            if len(first) >= 3 * cfg.min_inliers:
+                vis_ids, proj, _ = project_local_points(pts, first, T_cw_pred, self.camera, check_distance=False)
+                m, k = self._guided(vis_ids, proj, obs, radius, tree)
+            if len(m) < 3 * cfg.min_inliers:
+                vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw_pred, self.camera)
+                m, k = self._guided(vis_ids, proj, obs, radius, tree)
             if len(m) < 3 * cfg.min_inliers and not relocalize:
                 m, k = self._guided(vis_ids, proj, obs, cfg.search_radius_lost_px, tree)
-            if len(m) < cfg.min_inliers and len(local_ids) and obs.descriptors is not None:
-                # no usable prediction: match the whole local map by descriptor alone
-                d = pts.descriptor[local_ids]
-                i1, i2 = brute_force_match(d, obs.descriptors, self.binary, ratio=0.8,
-                                           max_distance=cfg.max_descriptor_distance if self.binary else None)
-                m, k = i1, i2
-                vis_ids = local_ids
-                T_cw_pred = None
+            if len(m) < cfg.min_inliers:
+                m, k, vis_ids, T_cw_pred = self._match_without_prediction(obs, local_ids)
             obs.point_ids[k] = vis_ids[m]
         self.timers["association"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        T_cw, inl = self._estimate(obs, T_cw_pred)
+        T_cw, inl = self._estimate(obs, T_cw_pred, final=cfg.association != "match")
+        if (T_cw is None or inl.sum() < cfg.min_inliers) and cfg.association == "match" and T_cw_pred is not None:
+            # the prediction misled the guided search (a fast or wide-baseline motion): relocalize
+            # against the local map by descriptors alone
+            t1 = time.perf_counter()
+            obs.point_ids[:] = -1
+            m, k, vis_ids, T_cw_pred = self._match_without_prediction(obs, local_ids)
+            obs.point_ids[k] = vis_ids[m]
+            self.timers["association"] += time.perf_counter() - t1
+            T_cw, inl = self._estimate(obs, None, final=False)
         if T_cw is not None and cfg.association == "match":
             # second pass: the whole local map at the refined pose with a tight radius (TrackLocalMap)
             t1 = time.perf_counter()
-            vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw, self.camera)
-            obs.point_ids[:] = -1
-            m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.pnp_reproj_px * 1.5), tree)
+            sel = np.flatnonzero(obs.point_ids >= 0)
+            obs.point_ids[sel[~inl]] = -1  # keep the first pass's inliers
+            first_ids = obs.point_ids.copy()
+            inl = np.ones(int((first_ids >= 0).sum()), bool)
+            kept = obs.point_ids[obs.point_ids >= 0]
+            rest = np.union1d(local_ids, first) if len(first) else local_ids
+            rest = rest[~np.isin(rest, kept)]
+            vis_ids, proj, _ = project_local_points(pts, rest, T_cw, self.camera)
+            free = obs.point_ids < 0
+            m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.pnp_reproj_px * 1.5), tree, free)
             obs.point_ids[k] = vis_ids[m]
-            self.timers["association"] += time.perf_counter() - t1
+            vis_ids = np.concatenate([kept, vis_ids])
+            dt_assoc = time.perf_counter() - t1
+            self.timers["association"] += dt_assoc
+            t0 += dt_assoc  # not pose time
             T_cw2, inl2 = self._estimate(obs, T_cw, refine_only=True)
             if T_cw2 is not None and inl2.sum() >= inl.sum() * 0.8:
                 T_cw, inl = T_cw2, inl2
+            else:  # the wider association did not hold: back to the first pass
+                obs.point_ids = first_ids
         self.timers["pose"] += time.perf_counter() - t0
         if T_cw is None or inl.sum() < cfg.min_inliers:
             obs.point_ids[:] = -1 if cfg.association == "match" else obs.point_ids
@@ -483,16 +513,28 @@ class Tracker:
             pts.record(vis_ids, obs.point_ids[obs.point_ids >= 0])
         return inv_T(T_cw), int(inl.sum())
 
-    def _guided(self, vis_ids, proj, obs: Observation, radius: float, tree):
+    def _match_without_prediction(self, obs: Observation, local_ids: np.ndarray):
+        """Descriptor matching of the whole local map (no pose prior); returns ``(map idx, keypoint idx,
+        ids the map indices refer to, None)``."""
+        empty = np.zeros(0, np.int64)
+        if len(local_ids) == 0 or obs.descriptors is None or self.map.points.descriptor is None:
+            return empty, empty, local_ids, None
+        i1, i2 = brute_force_match(self.map.points.descriptor[local_ids], obs.descriptors, self.binary, ratio=0.8,
+                                   max_distance=self.cfg.max_descriptor_distance if self.binary else None)
+        return i1, i2, local_ids, None
+
+    def _guided(self, vis_ids, proj, obs: Observation, radius: float, tree, free: np.ndarray | None = None):
         if len(vis_ids) == 0 or obs.descriptors is None or len(obs) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         m, k, _ = guided_match(
             proj, self.map.points.descriptor[vis_ids], obs.uv_undist, obs.descriptors, radius, self.binary,
             self.cfg.max_descriptor_distance if self.binary else None, self.cfg.match_ratio, kp_tree=tree,
+            kp_free=free,
         )
         return m, k
 
-    def _estimate(self, obs: Observation, T_cw_guess: np.ndarray | None, refine_only: bool = False):
+    def _estimate(self, obs: Observation, T_cw_guess: np.ndarray | None, refine_only: bool = False,
+                  final: bool = True):
         """Pose from the associated points of ``obs``; returns ``(T_cam_world, inlier mask over
         the associated points in index order)``."""
         cfg = self.cfg
@@ -520,13 +562,19 @@ class Tracker:
         # 3D-2D
         sigma = obs.sigma[sel]
         ur = None if obs.u_right is None else obs.u_right[sel]
-        if refine_only and T_cw_guess is not None:
-            T_cw = T_cw_guess
-        else:
+        if T_cw_guess is not None and (refine_only or cfg.pose_from_prediction):
+            # matches were gated around the prediction: robust pose optimization straight from it
+            # (ORB-SLAM's TrackWithMotionModel); RANSAC only when that explains too few matches
+            T_cw, inl = refine_pose(T_cw_guess, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
+            if refine_only or inl.sum() >= max(cfg.min_inliers, 0.6 * len(sel)):
+                return T_cw, inl
+        if True:
             T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations)
             if T_cw is None:
                 return None, np.zeros(len(sel), bool)
-        T_cw, inl = refine_pose(T_cw, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
+            if not final:  # a refinement with all residuals follows the second association pass
+                return T_cw, m
+        T_cw, inl = refine_pose(T_cw, Xw, uv, self.K, sigma, ur, self.bf)
         return T_cw, inl
 
     # ------------------------------------------------------------------ 2D-2D
@@ -559,7 +607,10 @@ class Tracker:
             if len(i1) < cfg.min_inliers:
                 return None, int(len(i1))
             x1, x2 = ref.uv_undist[i1], obs.uv_undist[i2]
-            R, t, mask, status = essential_pose(x1, x2, self.K, cfg.essential_px, cfg.two_view_min_parallax_deg)
+            # with depth the rotation must come from E even at small parallax (a rotation-only fit would
+            # absorb sideways translation); the translation then comes from the depths
+            min_par = cfg.two_view_min_parallax_deg if self.sensor == "mono" else 0.0
+            R, t, mask, status = essential_pose(x1, x2, self.K, cfg.essential_px, min_par)
             if R is None or mask.sum() < cfg.min_inliers:
                 return None, int(mask.sum())
             advance = status == "ok"
@@ -571,9 +622,9 @@ class Tracker:
                 Xp = self.camera.backproject(x1[both], z1[both])
                 Xc = self.camera.backproject(x2[both], z2[both])
                 diff = Xc - Xp @ R.T
-                if status == "ok":
+                if status == "ok" and self.cfg.two_view_depth_scale_only:
                     t_m = float(np.median(diff @ t)) * t  # scale of the unit translation from depth
-                else:  # translation unobservable from the images: take it straight from the depths
+                else:  # the rotation from the images, the translation from the depths
                     t_m = np.median(diff, axis=0)
                 T_world_cam = self._T_world_ref2d @ inv_T(make_T(R, t_m))
             else:
@@ -639,7 +690,7 @@ class Tracker:
             # top up the tracks with new corners away from the existing ones
             mask = detect_mask(gray.shape, obs.uv, max(8, int(self.fcfg.cell_size // 2)))
             new = self._detect(frame, gray, mask)
-            room = max(self.fcfg.n_features - len(obs), 0)  # keep the number of tracks bounded
+            room = max(min(cfg.klt_max_tracks, self.fcfg.n_features) - len(obs), 0)  # bounded number of tracks
             if len(new) > room:
                 new = new.subset(np.unique(np.linspace(0, len(new) - 1, room).astype(np.int64)) if room else np.zeros(0, np.int64))
             new.anchor_kf = np.full(len(new), kf_id, dtype=np.int64)
@@ -713,8 +764,6 @@ class Tracker:
                                            max_distance=cfg.max_descriptor_distance if self.binary else None)
                 self._triangulate_pairs(old, a[i1], kf, b[i2], obs)
         else:
-            if kf.extra is None:
-                kf.extra = {}
             anchors = obs.anchor_kf
             cand = np.flatnonzero((kf.point_ids < 0) & (anchors >= 0) & (anchors != kf.id))
             for a_id in np.unique(anchors[cand]):

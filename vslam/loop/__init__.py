@@ -9,8 +9,17 @@ Building blocks (Galvez-Lopez & Tardos 2012, DBoW2; Mur-Artal et al. 2015, ORB-S
 * :mod:`vslam.loop.database` -- inverted-index :class:`KeyframeDatabase` with normalized scores.
 * :mod:`vslam.loop.detector` -- :class:`LoopDetector`, temporal-consistency groups.
 * :mod:`vslam.loop.training` -- ORB descriptors for training (:func:`extract_orb`).
+* :mod:`vslam.loop.verification` -- geometric verification (descriptor matching, 3D-3D / Sim(3) or
+  PnP RANSAC, guided matching, pose refinement).
+* :mod:`vslam.loop.closing` -- :class:`LoopCloser`: detection, verification, fusion, essential-graph
+  correction and global BA, as a keyframe listener of the System.
+* :mod:`vslam.loop.relocalization` -- :class:`Relocalizer`: localize a lost frame against the map.
+
+(``closing`` and ``relocalization`` import the backend and frontend: import them from their modules.)
 """
-from vslam.loop.config import DatabaseConfig, LoopConfig, LoopDetectorConfig, VocabularyConfig
+from vslam.loop.config import (
+    ClosingConfig, DatabaseConfig, LoopConfig, LoopDetectorConfig, RelocalizationConfig, VocabularyConfig,
+)
 from vslam.loop.database import KeyframeDatabase
 from vslam.loop.detector import LoopCandidate, LoopDetector
 from vslam.loop.vocabulary import (
@@ -23,7 +32,7 @@ from vslam.loop.vocabulary import (
 )
 
 __all__ = [
-    "BowVector", "DEFAULT_VOCABULARY_PATH", "DatabaseConfig", "KeyframeDatabase", "LoopCandidate", "LoopConfig",
+    "BowVector", "ClosingConfig", "DEFAULT_VOCABULARY_PATH", "DatabaseConfig", "RelocalizationConfig", "KeyframeDatabase", "LoopCandidate", "LoopConfig",
     "LoopDetector", "LoopDetectorConfig", "Vocabulary", "VocabularyConfig", "build_default_vocabulary",
     "l1_score", "load_default_vocabulary",
 ]

@@ -109,9 +109,100 @@ class LoopDetectorConfig:
 
 
 @dataclass(frozen=True)
-class LoopConfig:
-    """All place-recognition settings."""
+class ClosingConfig:
+    """Geometric verification and correction of a loop candidate (ORB-SLAM, Mur-Artal et al. 2015,
+    sec. VII-B/C/D; ORB-SLAM2 sec. VI-D).
 
+    Attributes:
+        candidate_neighbours: the candidate's strongest covisible keyframes whose points are matched
+            together with its own.
+        match_ratio: Lowe ratio of the brute-force descriptor matching (query keypoints vs points).
+        max_descriptor_distance: Hamming bits; worse descriptor matches are dropped.
+        min_matches: descriptor matches needed before RANSAC.
+        align_threshold_m: RGB-D/stereo 3D-3D RANSAC inlier distance, metres (scaled by depth^2 for
+            points beyond 1 m, as depth noise grows quadratically).
+        align_threshold_rel: monocular Sim(3) RANSAC inlier distance as a fraction of the median
+            distance of the matched points from the candidate camera.
+        search_radius_px: guided matching (projection of the candidate's points at the estimated
+            pose) search radius.
+        min_inliers: inliers after guided matching and pose refinement needed to accept a loop
+            (RGB-D / stereo).
+        min_inliers_mono: the same for monocular.
+        min_inlier_ratio: accepted loops also need this fraction of the guided matches as inliers.
+        max_correction_deg / max_correction_m: a loop whose correction of the query pose is larger
+            is rejected (a drift of this size is implausible between two consistent keyframes);
+            ``max_correction_m`` is ignored for monocular (unknown scale).
+        covisibility_edge_weight: covisibility links at least this strong enter the essential graph.
+        loop_edge_information: information multiplier of the loop edges relative to the odometry
+            (spanning tree, covisibility) edges: the verified loop pose is far more certain than one
+            odometry step (it is measured against the old map directly).
+        min_keyframes_between: no loop is detected within this many keyframes after the last one.
+        fuse_radius_px: search radius when fusing the candidate's points into the query's neighbours.
+        global_ba: run a global bundle adjustment after the pose-graph correction.
+    """
+
+    candidate_neighbours: int = 10
+    match_ratio: float = 0.8
+    max_descriptor_distance: float = 64.0
+    min_matches: int = 20
+    align_threshold_m: float = 0.05
+    align_threshold_rel: float = 0.03
+    search_radius_px: float = 8.0
+    min_inliers: int = 40
+    min_inliers_mono: int = 40
+    min_inlier_ratio: float = 0.3
+    max_correction_deg: float = 45.0
+    max_correction_m: float = 2.0
+    covisibility_edge_weight: int = 100
+    loop_edge_information: float = 10.0
+    min_keyframes_between: int = 10
+    fuse_radius_px: float = 4.0
+    global_ba: bool = True
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 6 or self.min_inliers_mono < 6:
+            raise ConfigError(f"loop closing min_inliers={self.min_inliers}/{self.min_inliers_mono}: must be >= 6")
+        if not 0.0 < self.match_ratio <= 1.0:
+            raise ConfigError(f"loop closing match_ratio={self.match_ratio}: must be in (0, 1]")
+        for name in ("align_threshold_m", "align_threshold_rel", "search_radius_px", "fuse_radius_px"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"loop closing {name}={getattr(self, name)}: must be > 0")
+
+
+@dataclass(frozen=True)
+class RelocalizationConfig:
+    """Relocalization of a frame whose tracking failed (ORB-SLAM sec. V-C): BoW candidates, PnP
+    RANSAC, guided matching and pose refinement.
+
+    Attributes:
+        max_candidates: keyframes (best raw BoW score first) tried.
+        match_ratio / max_descriptor_distance: descriptor matching of the frame to a candidate's points.
+        min_matches: matches needed to try PnP.
+        reproj_px: PnP RANSAC inlier threshold.
+        search_radius_px: guided matching radius at the PnP pose.
+        min_inliers: inliers after refinement needed to accept the pose (ORB-SLAM: 50).
+    """
+
+    max_candidates: int = 5
+    match_ratio: float = 0.8
+    max_descriptor_distance: float = 64.0
+    min_matches: int = 15
+    reproj_px: float = 4.0
+    search_radius_px: float = 8.0
+    min_inliers: int = 40
+
+    def __post_init__(self) -> None:
+        if self.max_candidates < 1 or self.min_inliers < 6 or self.min_matches < 6:
+            raise ConfigError("relocalization needs max_candidates >= 1, min_matches >= 6 and min_inliers >= 6")
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """All place-recognition and loop-closing settings (``enabled=false`` turns loop closing off)."""
+
+    enabled: bool = True
     vocabulary: VocabularyConfig = VocabularyConfig()
     database: DatabaseConfig = DatabaseConfig()
     detector: LoopDetectorConfig = LoopDetectorConfig()
+    closing: ClosingConfig = ClosingConfig()
+    relocalization: RelocalizationConfig = RelocalizationConfig()

@@ -40,16 +40,21 @@ class Map:
         self.update_covisibility(kf.id)
 
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
+        """Recompute ``kf_id``'s links: one vectorized pass over every keyframe's observations."""
         kf = self.keyframes[kf_id]
         ids = np.unique(kf.observed_ids())
         links = self.covisibility.setdefault(kf_id, {})
-        for other in self.keyframes.values():
-            if other.id == kf_id or other.segment != kf.segment or other.bad:
-                continue
-            w = int(np.isin(other.observed_ids(), ids, assume_unique=False).sum())
-            if w >= min_weight:
-                links[other.id] = w
-                self.covisibility.setdefault(other.id, {})[kf_id] = w
+        others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
+        if not others or len(ids) == 0:
+            return
+        obs = [o.observed_ids() for o in others]
+        owner = np.repeat(np.arange(len(others)), [len(a) for a in obs])
+        shared = np.isin(np.concatenate(obs), ids)
+        weights = np.bincount(owner[shared], minlength=len(others))
+        for j in np.flatnonzero(weights >= min_weight):
+            w = int(weights[j])
+            links[others[j].id] = w
+            self.covisibility.setdefault(others[j].id, {})[kf_id] = w
 
     def covisible(self, kf_id: int, n: int | None = None) -> list[int]:
         """Keyframes linked to ``kf_id``, strongest first (at most ``n``)."""

@@ -1,0 +1,88 @@
+"""Per-frame speed of the tracking hot path on the three target sequences (issue 4).
+
+Runs the full :func:`vslam.api.run_path` (image loading included) with ``backend.local_ba=false``
+and ``loop.enabled=false`` on:
+
+* ``7scenes_rgbd``: 7-Scenes redkitchen, first 300 frames, RGB-D 640x480 (target >= 30 frames/s);
+* ``kitti06_stereo``: KITTI 06 frames 0-50, stereo 1226x370 (target >= 10 frames/s);
+* ``kitti07_mono``: KITTI 07 frames 0-159, monocular 1226x370 (target >= 10 frames/s).
+
+For each it reports wall frames/s, process CPU ms per frame (``time.process_time``: the number to
+compare on a loaded, shared machine), the mean per-stage ms from ``stats["stage_ms"]``, the ATE
+RMSE and the 1-minute load average at the start (``os.getloadavg``).
+
+Run ``python benchmarks/frontend_speed.py [SHARED_DATA]`` (prints a table and the JSON) or call
+:func:`run_frontend_speed`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+SEQUENCES: dict[str, dict] = {
+    "7scenes_rgbd": {"path": "7scenes_redkitchen", "sensor": "rgbd", "max_frames": 300, "target_fps": 30.0},
+    "kitti06_stereo": {"path": "kitti_odometry/sequences/06", "sensor": "stereo", "max_frames": None,
+                       "target_fps": 10.0},
+    "kitti07_mono": {"path": "kitti_odometry/sequences/07", "sensor": "mono", "max_frames": None,
+                     "target_fps": 10.0},
+}
+OVERRIDES = ("backend.local_ba=false", "loop.enabled=false")
+
+
+def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
+                       overrides: tuple[str, ...] = OVERRIDES) -> dict:
+    """``{name: {"fps", "cpu_ms_per_frame", "stage_ms", "ate_rmse", "frames", "tracked", "load1",
+    "target_fps"}}`` for the sequences in :data:`SEQUENCES` (all unless ``names``)."""
+    from vslam.api import run_path
+
+    shared_data = Path(shared_data)
+    out: dict[str, dict] = {}
+    for name, spec in SEQUENCES.items():
+        if names and name not in names:
+            continue
+        path = shared_data / spec["path"]
+        if not path.exists():
+            logging.getLogger(__name__).warning("skipping %s: %s is missing", name, path)
+            continue
+        load1 = os.getloadavg()[0]
+        c0 = time.process_time()
+        w0 = time.perf_counter()
+        res = run_path(path, None, sensor=spec["sensor"], overrides=list(overrides),
+                       max_frames=spec["max_frames"])
+        cpu = time.process_time() - c0
+        wall = time.perf_counter() - w0
+        s = res.stats
+        n = max(1, int(s["frames"]))
+        out[name] = {
+            "fps": s["fps"],
+            "wall_s_total": round(wall, 2),
+            "cpu_ms_per_frame": round(1000.0 * cpu / n, 1),
+            "stage_ms": s.get("stage_ms", {}),
+            "ate_rmse": s.get("ate_rmse"),
+            "frames": s["frames"],
+            "tracked": s["tracked"],
+            "load1": round(load1, 2),
+            "target_fps": spec["target_fps"],
+        }
+    return out
+
+
+def main(argv: list[str]) -> int:
+    shared = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parents[2] / "shared" / "data"
+    names = argv[2:] or None
+    res = run_frontend_speed(shared, names)
+    for name, r in res.items():
+        st = " ".join(f"{k}={v:.1f}" for k, v in r["stage_ms"].items() if isinstance(v, (int, float)))
+        ate = f"{r['ate_rmse']:.4f}" if r["ate_rmse"] is not None else "-"
+        print(f"{name:15s} {r['fps']:6.1f} fps (target {r['target_fps']:.0f})  cpu {r['cpu_ms_per_frame']:6.1f} "
+              f"ms/frame  ATE {ate}  load {r['load1']}  [{st}]")
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

@@ -1,0 +1,400 @@
+"""Loop closing: detection, geometric verification and correction (ORB-SLAM's LoopClosing thread).
+
+After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D):
+
+1. **Detect.** The keyframe's BoW vector (:class:`vslam.loop.vocabulary.Vocabulary`) queries the
+   :class:`KeyframeDatabase` through the :class:`LoopDetector` (its covisible keyframes excluded,
+   temporal consistency over ``detector.min_consistent`` keyframes).
+2. **Verify** (:func:`vslam.loop.verification.verify`): the query keyframe's descriptors are matched
+   to the map points of the candidate and its covisible keyframes; RANSAC estimates the query's
+   pose in the candidate's world, SE(3) from depth (RGB-D, stereo) or Sim(3) from the query's own
+   map points (monocular, where scale drifts); guided matching by projection and robust pose
+   refinement give the final inliers, at least ``closing.min_inliers`` to accept.
+3. **Correct.** The matched duplicate points are fused (the candidate side's point survives, the
+   query keyframes' observations are remapped), and the candidate's points are projected into the
+   query's covisible keyframes and fused too (ORB-SLAM's SearchAndFuse). The essential graph
+   (spanning tree: each keyframe to its predecessor; covisibility links of weight >=
+   ``covisibility_edge_weight``; the loop links) is optimized with
+   :func:`vslam.backend.optimize_pose_graph` (SE(3); Sim(3) for monocular) with the segment's first
+   keyframe and the loop keyframe fixed; every map point moves with its reference (first) keyframe
+   (:func:`vslam.backend.correct_points`); then an optional global BA.
+
+Modes: deterministic (default) — :meth:`LoopCloser.on_keyframe` queues, :meth:`LoopCloser.after_frame`
+processes inline after the frame (after local mapping). Real-time use needs the same work in a
+background thread holding the map lock only to snapshot the graph and to write the correction
+back (the pose-graph solve and global BA can run on copies), with local mapping paused while the
+correction is written and tracking told of the correction (``correction_listeners``).
+
+Example:
+    >>> closer = LoopCloser(system.map, camera, "rgbd", LoopConfig())        # doctest: +SKIP
+    >>> system.add_keyframe_listener(closer.on_keyframe)                      # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from vslam.backend.config import PoseGraphConfig
+from vslam.backend.pose_graph import correct_points, optimize_pose_graph
+from vslam.frontend.local_map import guided_match, project_local_points
+from vslam.frontend.pose import inv_T
+from vslam.geometry.camera import PinholeCamera
+from vslam.loop.config import LoopConfig
+from vslam.loop.database import KeyframeDatabase
+from vslam.loop.detector import LoopDetector
+from vslam.loop.verification import Features, Verified, verify
+from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
+from vslam.map.keyframe import KeyFrame
+from vslam.map.map import Map
+
+log = logging.getLogger(__name__)
+
+RGBD_VIRTUAL_BASELINE = 0.08  # metres, as the tracker's (ORB-SLAM2's bf = 40 for fx ~ 517)
+
+
+@dataclass
+class LoopRecord:
+    """One accepted and corrected loop."""
+
+    query_kf: int
+    match_kf: int
+    query_frame: int
+    match_frame: int
+    inliers: int
+    score: float
+    correction_m: float
+    correction_deg: float
+    scale: float
+    fused_points: int
+    ms: float
+
+
+def _rot_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+class LoopCloser:
+    """Keyframe listener that detects, verifies and corrects loops (see the module docstring).
+
+    Args:
+        map_: the shared map.
+        camera: intrinsics (``baseline`` for stereo).
+        sensor: ``mono``, ``stereo`` or ``rgbd``.
+        config: the root config's ``loop`` section.
+        vocabulary: the BoW vocabulary (default: the packaged one).
+        scale_factor: feature pyramid scale (observation sigma ``scale_factor ** octave``).
+        lock: the map lock shared with tracking / local mapping.
+        global_ba: callable running a full BA over the map (e.g. ``LocalMapper.global_ba``); None: none.
+        pose_graph: pose-graph solver settings.
+    """
+
+    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: LoopConfig | None = None,
+                 vocabulary: Vocabulary | None = None, scale_factor: float = 1.2,
+                 lock: threading.RLock | None = None, global_ba: Callable[[], object] | None = None,
+                 pose_graph: PoseGraphConfig | None = None) -> None:
+        self.config = config or LoopConfig()
+        self.map = map_
+        self.camera = camera
+        self.sensor = sensor
+        self.scale_factor = float(scale_factor)
+        self.lock = lock if lock is not None else threading.RLock()
+        self.global_ba = global_ba
+        self.pose_graph_config = pose_graph or PoseGraphConfig()
+        self.vocabulary = vocabulary or load_default_vocabulary()
+        self.database = KeyframeDatabase(self.vocabulary.n_words, self.config.database)
+        self.detector = LoopDetector(self.database, self.config.detector, neighbours=self._neighbours)
+        if sensor == "stereo":
+            self.bf = camera.fx * float(camera.baseline or 0.0)
+        elif sensor == "rgbd":
+            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
+        else:
+            self.bf = 0.0
+        self._pending: list[int] = []
+        self.bows: dict[int, BowVector] = {}
+        self.loops: list[LoopRecord] = []
+        self.rejected = 0
+        self.candidates = 0
+        self._last_loop_kf = -10**9
+        self._times: list[float] = []
+        self._t_total = 0.0
+        self._n_processed = 0
+        self.correction_listeners: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
+
+    # ------------------------------------------------------------------ feeding
+    def on_keyframe(self, kf: KeyFrame) -> None:
+        """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`)."""
+        self._pending.append(kf.id)
+
+    def after_frame(self) -> None:
+        """Process the queued keyframes (inline, deterministic)."""
+        while self._pending:
+            t0 = time.perf_counter()
+            self.process(self._pending.pop(0))
+            self._t_total += time.perf_counter() - t0
+            self._n_processed += 1
+
+    def finish(self) -> None:
+        self.after_frame()
+
+    def _neighbours(self, kf_id: int) -> list[int]:
+        return self.map.covisible(kf_id)
+
+    # ------------------------------------------------------------------ one keyframe
+    def process(self, kf_id: int) -> LoopRecord | None:
+        """BoW, detection, verification and (if accepted) correction for keyframe ``kf_id``."""
+        t0 = time.perf_counter()
+        with self.lock:
+            kf = self.map.keyframes.get(kf_id)
+            if kf is None or kf.descriptors is None or kf.descriptors.dtype != np.uint8:
+                return None
+            bow, _ = self.vocabulary.transform(kf.descriptors)
+            self.bows[kf_id] = bow
+            cc = self.config.closing
+            exclude = set(self.map.covisible(kf_id))
+            if kf_id - self._last_loop_kf < cc.min_keyframes_between or kf.bad:
+                self.database.add(kf_id, bow)
+                return None
+            cand = self.detector.detect(kf_id, bow, covisible_ids=exclude)
+            if cand is None:
+                return None
+            self.candidates += 1
+            record = None
+            # the best match first, then its group (nearest ids first); at most three tries. Keyframes
+            # of other map segments are skipped (another coordinate frame: that would be map merging)
+            same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
+            order = sorted((i for i in cand.group if i not in exclude and i in same),
+                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[:3]
+            for match_id in order:
+                ver = self._verify(kf, match_id)
+                if ver == "implausible":
+                    break  # the group agrees on a correction too large to trust
+                if ver is not None:
+                    record = self._correct(kf, match_id, ver, cand.score)
+                    break
+            if record is None:
+                self.rejected += 1
+                return None
+            self.detector.reset()
+            self._last_loop_kf = kf_id
+        if self.config.closing.global_ba and self.global_ba is not None:
+            t_ba = time.perf_counter()
+            self.global_ba()
+            log.info("global BA after the loop: %.0f ms", 1e3 * (time.perf_counter() - t_ba))
+        record.ms = round(1e3 * (time.perf_counter() - t0), 1)
+        self._times.append(record.ms)
+        log.info("loop closed: keyframe %d (frame %d) -> %d (frame %d), %d inliers, correction %.3f m / %.2f deg, "
+                 "%.0f ms", record.query_kf, record.query_frame, record.match_kf, record.match_frame,
+                 record.inliers, record.correction_m, record.correction_deg, record.ms)
+        return record
+
+    # ------------------------------------------------------------------ verification
+    def features_of(self, kf: KeyFrame) -> Features:
+        """The keyframe's keypoints with 3D points in its camera frame: from depth (RGB-D, stereo) or
+        from its own map points (monocular)."""
+        if self.sensor == "mono":
+            X = np.full((len(kf.uv_undist), 3), np.nan)
+            pid = kf.point_ids
+            ok = pid >= 0
+            ok[ok] = self.map.points.alive[pid[ok]]
+            Xw = self.map.points.position[pid[ok]]
+            T = kf.T_cam_world
+            X[ok] = Xw @ T[:3, :3].T + T[:3, 3]
+            X[X[:, 2] <= 0] = np.nan
+        else:
+            d = kf.depth
+            ok = np.isfinite(d) & (d > 0)
+            X = np.full((len(kf.uv_undist), 3), np.nan)
+            X[ok] = self.camera.backproject(kf.uv_undist[ok], d[ok])
+        return Features(kf.uv_undist, kf.descriptors, kf.octave, kf.depth, kf.u_right, X)
+
+    def _group(self, match_id: int, exclude: set[int]) -> list[int]:
+        cc = self.config.closing
+        group = [match_id] + [k for k in self.map.covisible(match_id, cc.candidate_neighbours) if k not in exclude]
+        return [k for k in group if k in self.map.keyframes]
+
+    def _verify(self, kf: KeyFrame, match_id: int) -> Verified | str | None:
+        cc = self.config.closing
+        match = self.map.keyframes[match_id]
+        if match.segment != kf.segment or match.bad:
+            return None
+        q_side = set(self.map.covisible(kf.id)) | {kf.id}
+        group = self._group(match_id, q_side)
+        pts = self.map.local_point_ids(group)
+        # points the query side already observes are not loop evidence
+        pts = pts[~np.isin(pts, self.map.local_point_ids([k for k in q_side if k in self.map.keyframes]))]
+        ver = verify(self.features_of(kf), self.map.points, pts, self.camera, self.sensor,
+                     ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
+                     align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
+                     search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
+                     seed=kf.id)
+        need = cc.min_inliers_mono if self.sensor == "mono" else cc.min_inliers
+        if ver is None or ver.n_inliers < need:
+            log.debug("loop candidate %d -> %d rejected: %s inliers", kf.id, match_id,
+                      None if ver is None else ver.n_inliers)
+            return None
+        dT = ver.T_world_cam @ kf.T_cam_world
+        deg, dist = _rot_deg(dT[:3, :3]), float(np.linalg.norm(ver.T_world_cam[:3, 3] - kf.T_world_cam[:3, 3]))
+        if deg > cc.max_correction_deg or (self.sensor != "mono" and dist > cc.max_correction_m):
+            log.info("loop candidate %d -> %d rejected: implausible correction %.2f m / %.1f deg",
+                     kf.id, match_id, dist, deg)
+            return "implausible"
+        return ver
+
+    # ------------------------------------------------------------------ correction
+    def _correct(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> LoopRecord:
+        cc = self.config.closing
+        mono = self.sensor == "mono"
+        seg = kf.segment
+        nodes = sorted(k.id for k in self.map.keyframes.values() if k.segment == seg)
+        index = {k: i for i, k in enumerate(nodes)}
+        T_before = np.stack([self.map.keyframes[k].T_world_cam for k in nodes])
+        # the query side: the query and its covisible keyframes, moved by the loop's correction
+        S_q = ver.S_world_cam
+        S_corr = S_q @ kf.T_cam_world
+        q_group = [kf.id] + [k for k in self.map.covisible(kf.id) if k in index and k != match_id]
+        c_group = self._group(match_id, set(q_group))
+        S_init = {k: S_corr @ self.map.keyframes[k].T_world_cam for k in q_group}
+        fused = self._fuse(kf, ver, q_group, c_group, S_init)
+        # ---- essential graph
+        edges = []
+        prev = None
+        for k in nodes:  # spanning tree: each keyframe to its predecessor in the segment
+            if prev is not None:
+                edges.append((index[prev], index[k], inv_T(T_before[index[prev]]) @ T_before[index[k]]))
+            prev = k
+        qs, cs = set(q_group), set(c_group)
+        for a in nodes:
+            for b, w in self.map.covisibility.get(a, {}).items():
+                if b <= a or b not in index or w < cc.covisibility_edge_weight or index[b] == index[a] + 1:
+                    continue
+                if (a in qs and b in cs) or (a in cs and b in qs):
+                    continue  # links across the loop are given by the loop edges below
+                edges.append((index[a], index[b], inv_T(T_before[index[a]]) @ T_before[index[b]]))
+        T_match = self.map.keyframes[match_id].T_world_cam
+        for k in q_group:  # loop edges: the candidate to every keyframe of the corrected query side
+            edges.append((index[match_id], index[k], inv_T(T_match) @ S_init[k], cc.loop_edge_information))
+        T_init = T_before.copy()
+        for k in q_group:
+            S = S_init[k]
+            s = float(np.cbrt(np.linalg.det(S[:3, :3])))
+            T_init[index[k]] = S
+            T_init[index[k], :3, :3] /= s
+        fixed = sorted({index[nodes[0]], index[match_id]})
+        t_pg = time.perf_counter()
+        result = optimize_pose_graph(T_init, edges, fixed=fixed, sim3=mono, config=self.pose_graph_config)
+        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(nodes), len(edges),
+                 result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
+        # ---- write back: poses, then points with their reference keyframe
+        # a Sim(3) node maps its (uncorrected) camera coordinates to the world: for the query side
+        # its scale is the loop's, so points expressed in their uncorrected reference camera are
+        # moved and rescaled by correct_points (ORB-SLAM CorrectLoop)
+        S_after = result.S_world_cam
+        store = self.map.points
+        n = len(store)
+        ids = np.flatnonzero(store.alive[:n])
+        ref = store.first_kf[ids]
+        lut = np.full(max(nodes) + 2, -1, np.int64)
+        lut[nodes] = np.arange(len(nodes))
+        inseg = (ref >= 0) & (ref <= max(nodes))
+        ids, ref = ids[inseg], lut[ref[inseg]]
+        ids, ref = ids[ref >= 0], ref[ref >= 0]
+        store.position[ids] = correct_points(store.position[ids], ref, T_before, S_after)
+        T_q_before = kf.T_world_cam.copy()
+        for k, T in zip(nodes, result.T_world_cam):
+            self.map.keyframes[k].T_world_cam = T.copy()
+        for k in set(q_group) | set(c_group):
+            self.map.update_covisibility(k)
+        for cb in self.correction_listeners:
+            cb(kf.id, T_q_before, kf.T_world_cam.copy())
+        dT = ver.T_world_cam @ inv_T(T_q_before)
+        rec = LoopRecord(
+            query_kf=kf.id, match_kf=match_id, query_frame=kf.frame_index,
+            match_frame=self.map.keyframes[match_id].frame_index, inliers=ver.n_inliers, score=round(score, 3),
+            correction_m=round(float(np.linalg.norm(ver.T_world_cam[:3, 3] - T_q_before[:3, 3])), 4),
+            correction_deg=round(_rot_deg(dT[:3, :3]), 3), scale=round(ver.scale, 4), fused_points=fused, ms=0.0,
+        )
+        self.loops.append(rec)
+        return rec
+
+    # ------------------------------------------------------------------ fusion
+    def _fuse(self, kf: KeyFrame, ver: Verified, q_group: list[int], c_group: list[int],
+              S_init: dict[int, np.ndarray]) -> int:
+        """Fuse the loop's duplicated points: the candidate-side point survives, the query-side one
+        is replaced in every keyframe (ORB-SLAM CorrectLoop + SearchAndFuse). Returns the number of
+        query-side points removed."""
+        store = self.map.points
+        n = len(store)
+        remap = np.arange(n + 1, dtype=np.int64)
+        remap[-1] = -1
+        n_fused = self._assign(kf, ver.kp_idx, ver.point_ids, remap)
+        c_pts = self.map.local_point_ids(c_group)
+        for k in q_group:
+            if k == kf.id:
+                continue
+            other = self.map.keyframes[k]
+            if other.descriptors is None or other.descriptors.dtype != np.uint8:
+                continue
+            S = S_init[k]
+            s = float(np.cbrt(np.linalg.det(S[:3, :3])))
+            T = S.copy()
+            T[:3, :3] /= s
+            vis, proj, _ = project_local_points(store, c_pts[store.alive[c_pts]], inv_T(T), self.camera,
+                                                check_distance=self.sensor != "mono")
+            if len(vis) == 0:
+                continue
+            m, kp, _ = guided_match(proj, store.descriptor[vis], other.uv_undist, other.descriptors,
+                                    self.config.closing.fuse_radius_px, True, 50.0, 0.9)
+            n_fused += self._assign(other, kp, vis[m], remap)
+        if n_fused:
+            moved = np.flatnonzero(remap[:-1] != np.arange(n))
+            for _ in range(4):
+                remap[moved] = remap[remap[moved]]
+            for k in self.map.keyframes.values():
+                pid = k.point_ids
+                k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+        return n_fused
+
+    def _assign(self, kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:
+        """Keypoints ``kp`` of ``kf`` observe the (candidate-side) points ``pids``."""
+        store = self.map.points
+        if len(kp) == 0:
+            return 0
+        # a candidate point already observed by this keyframe elsewhere: skip (one observation each)
+        dup_obs = np.isin(pids, kf.point_ids[kf.point_ids >= 0]) & (kf.point_ids[kp] != pids)
+        kp, pids = kp[~dup_obs], pids[~dup_obs]
+        cur = kf.point_ids[kp]
+        free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
+        kf.point_ids[kp[free]] = pids[free]
+        np.add.at(store.n_obs, pids[free], 1)
+        dup = ~free & (cur != pids)
+        loser, winner = remap[cur[dup]], remap[pids[dup]]
+        sel = (loser != winner) & (loser >= 0) & (winner >= 0)
+        loser, winner = loser[sel], winner[sel]
+        _, first = np.unique(loser, return_index=True)
+        loser, winner = loser[first], winner[first]
+        if len(loser) == 0:
+            return 0
+        remap[loser] = winner
+        np.add.at(store.n_obs, winner, store.n_obs[loser])
+        store.alive[loser] = False
+        store.n_obs[loser] = 0
+        return int(len(loser))
+
+    # ------------------------------------------------------------------ stats
+    def loop_list(self) -> list[list[int]]:
+        """``[[query_frame_index, matched_frame_index, inliers], ...]`` of the accepted loops."""
+        return [[r.query_frame, r.match_frame, r.inliers] for r in self.loops]
+
+    def stats(self) -> dict:
+        return {
+            "loops": self.loop_list(), "candidates": self.candidates, "rejected": self.rejected,
+            "details": [r.__dict__.copy() for r in self.loops],
+            "loop_ms_mean": round(float(np.mean(self._times)), 1) if self._times else 0.0,
+            "ms_per_keyframe": round(1e3 * self._t_total / max(self._n_processed, 1), 2),
+            "keyframes_processed": self._n_processed,
+        }

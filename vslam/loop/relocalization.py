@@ -1,0 +1,132 @@
+"""Relocalization of a frame whose tracking failed (ORB-SLAM, Mur-Artal et al. 2015, sec. V-C).
+
+The frame's BoW vector ranks the keyframes of the database by raw L1 score (eq. (3) of
+Galvez-Lopez & Tardos 2012); for each of the best ``max_candidates`` keyframes, the frame's
+descriptors are matched to the map points of that keyframe and its covisible neighbours,
+PnP RANSAC (or a 3D-3D alignment when the frame has depth) gives a pose, guided matching by
+projection and robust pose refinement give the inliers (:func:`vslam.loop.verification.verify`);
+the first candidate with ``min_inliers`` inliers wins.
+
+Hook for the tracker (the System builds it and passes it in)::
+
+    result = relocalizer(obs)          # obs: uv_undist, descriptors, octave, depth, u_right
+    if result is not None:
+        T_world_cam = result.T_world_cam      # and result.kp_idx -> result.point_ids matches
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vslam.geometry.camera import PinholeCamera
+from vslam.loop.config import RelocalizationConfig
+from vslam.loop.database import KeyframeDatabase
+from vslam.loop.verification import Features, verify
+from vslam.loop.vocabulary import Vocabulary
+from vslam.map.map import Map
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Relocalization:
+    """A relocalized frame: its pose, the keyframe it was localized against, the inlier matches."""
+
+    T_world_cam: np.ndarray
+    keyframe_id: int
+    kp_idx: np.ndarray
+    point_ids: np.ndarray
+    n_inliers: int
+
+
+class Relocalizer:
+    """Callable ``relocalizer(obs) -> Relocalization | None`` (see the module docstring).
+
+    Args:
+        map_: the map.
+        camera: intrinsics.
+        sensor: ``mono``, ``stereo`` or ``rgbd``.
+        vocabulary: BoW vocabulary.
+        database: keyframe database (shared with loop closing, which fills it); None: a private
+            one, filled by :meth:`add_keyframe`.
+        config: thresholds.
+        scale_factor: feature pyramid scale.
+        bf: ``fx * baseline`` (stereo; RGB-D: the virtual baseline), 0 for monocular.
+    """
+
+    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, vocabulary: Vocabulary,
+                 database: KeyframeDatabase | None = None, config: RelocalizationConfig | None = None,
+                 scale_factor: float = 1.2, bf: float = 0.0) -> None:
+        self.map = map_
+        self.camera = camera
+        self.sensor = sensor
+        self.vocabulary = vocabulary
+        self.database = database if database is not None else KeyframeDatabase(vocabulary.n_words)
+        self.config = config or RelocalizationConfig()
+        self.scale_factor = float(scale_factor)
+        self.bf = float(bf)
+        self.attempts = 0
+        self.successes = 0
+
+    def add_keyframe(self, kf: Any) -> None:
+        """Keyframe listener for a private database."""
+        if kf.descriptors is not None and kf.descriptors.dtype == np.uint8 and kf.id not in self.database:
+            self.database.add(kf.id, self.vocabulary.transform(kf.descriptors)[0])
+
+    def _keypoints_with_depth(self, kf_id: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """World points of the keyframe's keypoints that have depth but no map point (RGB-D / stereo)."""
+        kf = self.map.keyframes[kf_id]
+        if self.sensor == "mono" or kf.descriptors is None:
+            return None, None
+        ok = np.isfinite(kf.depth) & (kf.depth > 0) & (kf.point_ids < 0)
+        Xc = self.camera.backproject(kf.uv_undist[ok], kf.depth[ok])
+        return Xc @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3], kf.descriptors[ok]
+
+    def candidates(self, descriptors: np.ndarray, segment: int | None = None) -> list[int]:
+        """Keyframe ids by decreasing raw BoW score (at most ``max_candidates``)."""
+        bow, _ = self.vocabulary.transform(descriptors)
+        ids, scores, _ = self.database.raw_scores(bow, count_common=False)
+        if len(ids) == 0:
+            return []
+        order = np.lexsort((ids, -scores))
+        out = []
+        for i in ids[order].tolist():
+            kf = self.map.keyframes.get(i)
+            if kf is None or kf.bad or (segment is not None and kf.segment != segment):
+                continue
+            out.append(i)
+            if len(out) >= self.config.max_candidates:
+                break
+        return out
+
+    def __call__(self, obs: Any, segment: int | None = None) -> Relocalization | None:
+        """Relocalize a frame given its keypoints ``obs`` (attributes ``uv_undist``, ``descriptors``,
+        ``octave``, ``depth``, optional ``u_right``); keyframes of ``segment`` only if given."""
+        cfg = self.config
+        desc = getattr(obs, "descriptors", None)
+        if desc is None or len(desc) < cfg.min_matches or desc.dtype != np.uint8:
+            return None
+        self.attempts += 1
+        depth = np.asarray(obs.depth, float) if getattr(obs, "depth", None) is not None else np.full(len(desc), np.nan)
+        X = None
+        if self.sensor != "mono":
+            ok = np.isfinite(depth) & (depth > 0)
+            X = np.full((len(desc), 3), np.nan)
+            X[ok] = self.camera.backproject(obs.uv_undist[ok], depth[ok])
+        feat = Features(obs.uv_undist, desc, obs.octave, depth, getattr(obs, "u_right", None), X)
+        for kf_id in self.candidates(desc, segment):
+            group = [kf_id] + self.map.covisible(kf_id, 10)
+            pts = self.map.local_point_ids(group)
+            extra_X, extra_desc = self._keypoints_with_depth(kf_id)
+            ver = verify(feat, self.map.points, pts, self.camera, self.sensor, ratio=cfg.match_ratio,
+                         max_distance=cfg.max_descriptor_distance, min_matches=cfg.min_matches,
+                         search_radius_px=cfg.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
+                         pnp_reproj_px=cfg.reproj_px, seed=kf_id, extra_X=extra_X, extra_desc=extra_desc)
+            if ver is not None and max(ver.n_inliers, ver.n_ransac) >= cfg.min_inliers:
+                self.successes += 1
+                log.info("relocalized against keyframe %d with %d inliers", kf_id, ver.n_inliers)
+                return Relocalization(ver.T_world_cam, kf_id, ver.kp_idx, ver.point_ids, ver.n_inliers)
+        return None

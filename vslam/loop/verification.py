@@ -1,0 +1,196 @@
+"""Geometric verification of a place-recognition match: descriptor matching, 3D-3D / Sim(3) RANSAC,
+guided matching by projection and pose refinement.
+
+Shared by loop closing (query keyframe vs the candidate keyframe's neighbourhood) and
+relocalization (a lost frame vs a candidate keyframe). Follows ORB-SLAM (Mur-Artal et al., T-RO
+2015): ``SearchByBoW`` -> ``Sim3Solver`` (Horn 1987 closed form inside RANSAC; here
+:func:`vslam.geometry.align.align_points`, Umeyama 1991) -> ``SearchByProjection`` -> pose
+optimization (:func:`vslam.frontend.pose.refine_pose`, Huber-weighted Gauss-Newton with the
+chi-square inlier test).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam.errors import GeometryError
+from vslam.features.match import match_descriptors
+from vslam.frontend.local_map import guided_match, project_local_points
+from vslam.frontend.pose import inv_T, refine_pose
+from vslam.geometry.align import align_points
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.mappoint import MapPointStore
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Features:
+    """The keypoints of the frame (or keyframe) being localized.
+
+    ``uv_undist (N, 2)``, ``descriptors (N, 32) uint8``, ``octave (N,)``, ``depth (N,)`` (NaN where
+    unknown), ``u_right (N,)`` or None (stereo / RGB-D virtual right column), ``X_cam (N, 3)``
+    optional 3D points in the camera frame (NaN where unknown; monocular: from the keyframe's own map
+    points, so in its map's scale).
+    """
+
+    uv_undist: np.ndarray
+    descriptors: np.ndarray
+    octave: np.ndarray
+    depth: np.ndarray
+    u_right: np.ndarray | None = None
+    X_cam: np.ndarray | None = None
+
+
+@dataclass
+class Verified:
+    """An accepted geometric match.
+
+    Attributes:
+        T_world_cam: the frame's rigid pose in the candidate's world.
+        scale: Sim(3) scale (monocular: the query map's scale relative to the candidate's; else 1).
+        kp_idx, point_ids: the inlier correspondences (keypoint index -> candidate-side map point).
+        n_inliers: ``len(kp_idx)``.
+        n_ransac: inliers of the RANSAC stage.
+    """
+
+    T_world_cam: np.ndarray
+    scale: float
+    kp_idx: np.ndarray
+    point_ids: np.ndarray
+    n_inliers: int
+    n_ransac: int
+
+    @property
+    def S_world_cam(self) -> np.ndarray:
+        S = self.T_world_cam.copy()
+        S[:3, :3] *= self.scale
+        return S
+
+
+def descriptor_candidates(feat: Features, store: MapPointStore, point_ids: np.ndarray, ratio: float,
+                          max_distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Brute-force ratio + mutual matching of the features to map points; ``(kp_idx, point_ids)``."""
+    if store.descriptor is None or len(point_ids) < 2 or feat.descriptors is None or len(feat.descriptors) < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    i1, i2, _ = match_descriptors(feat.descriptors, store.descriptor[point_ids], binary=True, ratio=ratio,
+                                  mutual=True, max_distance=max_distance)
+    return np.asarray(i1, np.int64), point_ids[np.asarray(i2, np.int64)]
+
+
+def _refine(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera, T_cw: np.ndarray,
+            kp_idx: np.ndarray, pids: np.ndarray, radius: float, scale_factor: float, bf: float,
+            check_distance: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Guided matching of ``group_pts`` at ``T_cw`` (keeping the given pairs), then pose refinement.
+    Returns ``(T_cam_world, kp_idx, point_ids)`` of the inliers."""
+    vis, proj, _ = project_local_points(store, group_pts, T_cw, camera, check_distance=check_distance)
+    if len(vis):
+        m, k, _ = guided_match(proj, store.descriptor[vis], feat.uv_undist, feat.descriptors, radius, True,
+                               64.0, 0.9)
+        # union with the given pairs (given ones win on conflicts)
+        taken = np.zeros(len(feat.uv_undist), bool)
+        taken[kp_idx] = True
+        used = np.isin(vis[m], pids)
+        keep = ~taken[k] & ~used
+        kp_idx = np.concatenate([kp_idx, k[keep]])
+        pids = np.concatenate([pids, vis[m][keep]])
+    if len(kp_idx) < 6:
+        return T_cw, kp_idx[:0], pids[:0]
+    sigma = np.power(scale_factor, feat.octave[kp_idx].astype(float))
+    ur = None if feat.u_right is None else feat.u_right[kp_idx]
+    T_cw, inl = refine_pose(T_cw, store.position[pids], feat.uv_undist[kp_idx], camera.K, sigma, ur, bf)
+    return T_cw, kp_idx[inl], pids[inl]
+
+
+def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera, sensor: str,
+           *, ratio: float = 0.8, max_distance: float = 64.0, min_matches: int = 20, align_threshold_m: float = 0.05,
+           align_threshold_rel: float = 0.03, search_radius_px: float = 8.0, scale_factor: float = 1.2,
+           bf: float = 0.0, pnp_reproj_px: float = 4.0, seed: int = 0,
+           extra_X: np.ndarray | None = None, extra_desc: np.ndarray | None = None) -> Verified | None:
+    """Estimate the pose of ``feat`` against map points ``group_pts`` (ids into ``store``).
+
+    1. descriptor matching (ratio + mutual) of the keypoints to the points;
+    2. RANSAC: with ``feat.X_cam`` (depth, or the keyframe's own points) a 3D-3D alignment
+       (:func:`align_points`, SE(3) for metric sensors, Sim(3) ``with_scale`` for monocular),
+       otherwise PnP RANSAC (:func:`vslam.geometry.pnp.solve_pnp`);
+    3. two rounds of guided matching by projection + robust pose refinement.
+
+    ``extra_X (M, 3)`` / ``extra_desc (M, D)``: more candidates for the RANSAC stage that are not map
+    points (e.g. keypoints of the candidate keyframes with measured depth, in world coordinates):
+    with few map points (texture-poor scenes, wide baselines) they give RANSAC its support; the
+    refinement then uses map points only.
+
+    Returns None when any stage has too little support; the caller applies its own inlier threshold.
+    """
+    mono = sensor == "mono"
+    scale = 1.0
+    if extra_X is not None and len(extra_X) and store.descriptor is not None:
+        cand_X = np.concatenate([store.position[group_pts], extra_X])
+        cand_desc = np.concatenate([store.descriptor[group_pts], extra_desc])
+        cand_ids = np.concatenate([group_pts, np.full(len(extra_X), -1, np.int64)])
+        if feat.descriptors is None or len(feat.descriptors) < 2 or len(cand_desc) < 2:
+            return None
+        i1, i2, _ = match_descriptors(feat.descriptors, cand_desc, binary=True, ratio=ratio, mutual=True,
+                                      max_distance=max_distance)
+        kp, X_world, pids = np.asarray(i1, np.int64), cand_X[i2], cand_ids[i2]
+    else:
+        kp, pids = descriptor_candidates(feat, store, group_pts, ratio, max_distance)
+        X_world = store.position[pids]
+    if len(kp) < min_matches:
+        log.debug("verify: %d descriptor matches to %d points (< %d)", len(kp), len(group_pts), min_matches)
+        return None
+    T_cw: np.ndarray | None = None
+    n_ransac = 0
+    if feat.X_cam is not None:
+        Xc = feat.X_cam[kp]
+        ok = np.all(np.isfinite(Xc), axis=1)
+        if ok.sum() >= max(min_matches // 2, 6):
+            src, dst = Xc[ok], X_world[ok]
+            if mono:
+                # inlier distance relative to the scene depth on the candidate side (scale unknown)
+                d = np.linalg.norm(dst - np.median(dst, axis=0), axis=1)
+                thr = align_threshold_rel * max(float(np.median(d)), 1e-6) * 3.0
+            else:
+                z = np.maximum(1.0, src[:, 2])
+                thr = align_threshold_m * float(np.median(z)) ** 2
+            try:
+                S, inl = align_points(src, dst, with_scale=mono, threshold=thr, seed=seed)
+            except GeometryError:
+                S, inl = None, None
+            if S is not None and inl.sum() >= max(min_matches // 2, 6):
+                scale = float(np.cbrt(np.linalg.det(S[:3, :3]))) if mono else 1.0
+                T_wc = S.copy()
+                T_wc[:3, :3] /= scale
+                U, _, Vt = np.linalg.svd(T_wc[:3, :3])
+                T_wc[:3, :3] = U @ Vt
+                T_cw = inv_T(T_wc)
+                n_ransac = int(inl.sum())
+                sel = np.flatnonzero(ok)[inl]
+                kp, pids = kp[sel], pids[sel]
+                kp, pids = kp[pids >= 0], pids[pids >= 0]  # refinement works on map points
+    if T_cw is None:
+        if mono and feat.X_cam is not None:
+            return None  # monocular loops need the Sim(3) (scale) estimate
+        from vslam.geometry.pnp import solve_pnp
+
+        try:
+            T_cw, inl = solve_pnp(X_world, feat.uv_undist[kp], camera.K, threshold_px=pnp_reproj_px,
+                                  min_inliers=max(min_matches // 2, 6))
+        except GeometryError:
+            return None
+        n_ransac = int(inl.sum())
+        kp, pids = kp[inl], pids[inl]
+        kp, pids = kp[pids >= 0], pids[pids >= 0]
+    log.debug("verify: %d descriptor matches, %d RANSAC inliers", len(kp), n_ransac)
+    T_cw_ransac = T_cw
+    for radius in (search_radius_px, max(search_radius_px / 2.0, 3.0)):
+        T_cw, kp, pids = _refine(feat, store, group_pts, camera, T_cw, kp, pids, radius, scale_factor, bf,
+                                 check_distance=not mono)
+        if len(kp) < 6:  # too few map points to refine: the RANSAC pose, no map-point inliers
+            return Verified(T_world_cam=inv_T(T_cw_ransac), scale=scale, kp_idx=kp[:0], point_ids=pids[:0],
+                            n_inliers=0, n_ransac=n_ransac)
+    log.debug("verify: %d inliers after guided matching", len(kp))
+    return Verified(T_world_cam=inv_T(T_cw), scale=scale, kp_idx=kp, point_ids=pids, n_inliers=len(kp),
+                    n_ransac=n_ransac)
