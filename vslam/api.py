@@ -50,10 +50,12 @@ def run_path(
     start_frame: int = 0,
     progress: bool = False,
     viz: str | None = None,
+    dense: bool = False,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
-    ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
+    ``dense`` also fuses the keyframes into a TSDF mesh (``mesh.ply``, ``dense.ply``; RGB-D or
+    stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.config import Config
@@ -81,8 +83,10 @@ def run_path(
 
         viewer = RerunViewer.from_spec(viz, system=system)
         on_frame = viewer.bind(system)
+    if dense and sensor == "mono":
+        raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
     try:
-        return run_sequence(
+        result = run_sequence(
             system, ds.frames(start_frame, stop), total=stop - start_frame, output_dir=output, config=cfg,
             ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
@@ -91,3 +95,10 @@ def run_path(
     finally:
         if viewer is not None:
             viewer.close()
+    if dense and output is not None:
+        from vslam.reconstruction import reconstruct_run
+        from vslam.runner import write_stats
+
+        result.stats["dense"] = reconstruct_run(output)
+        write_stats(Path(output), result.stats)
+    return result

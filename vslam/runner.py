@@ -43,6 +43,11 @@ def _atomic_write_tum(path: Path, traj: Trajectory) -> None:
     os.replace(tmp, path)
 
 
+def write_stats(out_dir: Path, stats: dict) -> None:
+    """(Re)write ``out_dir/stats.json`` atomically."""
+    _write_json(Path(out_dir) / "stats.json", stats)
+
+
 def _write_json(path: Path, data: dict) -> None:
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, indent=2, default=_json_default))
@@ -154,6 +159,12 @@ def run_sequence(
             if out is not None:
                 kf = system.keyframe_trajectory()
                 write_tum(out / "keyframes.txt", kf)
+                if hasattr(system, "save_map_outputs"):
+                    try:
+                        stats["outputs"] = system.save_map_outputs(out, metadata=extra_stats)
+                    except Exception as exc:  # the trajectory and stats are already safe; report, don't lose them
+                        log.exception("writing the map outputs failed")
+                        stats["outputs_error"] = f"{type(exc).__name__}: {exc}"
             if ground_truth is not None and len(trajectory) >= 3:
                 stats.update(_evaluate(trajectory, ground_truth, align))
         if out is not None:

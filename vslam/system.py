@@ -16,6 +16,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -163,11 +164,46 @@ class System:
                 T_out = self.filter_backend.filter(frame.timestamp, T_out, out.n_inliers, out.ref_keyframe)
             if T_out is not None:
                 self._record(frame.timestamp, T_out, out.ref_keyframe)
+            if out.is_keyframe:
+                self._color_new_points(frame)
         if self.local_mapper is not None:  # deterministic local BA runs here, after the frame is recorded
             self.local_mapper.after_frame()
         if self.loop_closer is not None:  # deterministic loop closing, after local mapping
             self.loop_closer.after_frame()
         return TrackResult(frame.index, frame.timestamp, T_out, out.state, out.is_keyframe, out.n_inliers)
+
+    def save_map_outputs(self, directory: str | Path, metadata: dict | None = None) -> dict:
+        """Write the sparse map (``sparse.ply``), the topological map (``topology.json``/``.png``)
+        and the reloadable map (``map/``, with the bag-of-words database when loop closing ran)."""
+        from vslam.reconstruction.map_outputs import write_map_outputs
+
+        lc = self.loop_closer
+        loops_kf = [(r.query_kf, r.match_kf, r.inliers) for r in lc.loops] if lc is not None else []
+        with self._map_lock:
+            return write_map_outputs(directory, self.map, camera=self.camera,
+                                     database=lc.database if lc is not None else None,
+                                     loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})})
+
+    def _color_new_points(self, frame: Frame) -> None:
+        """Give the newest keyframe's not yet coloured map points the colour of this frame's image
+        at their keypoints (RGB; grey images give grey points). For the sparse map export."""
+        if not self.map.keyframes:
+            return
+        kf = self.map.keyframes[max(self.map.keyframes)]
+        idx = np.flatnonzero(kf.point_ids >= 0)
+        if not len(idx):
+            return
+        pid = kf.point_ids[idx]
+        store = self.map.points
+        todo = ~store.color[pid].any(axis=1)
+        if not todo.any():
+            return
+        idx, pid = idx[todo], pid[todo]
+        h, w = frame.image.shape[:2]
+        u = np.clip(np.rint(kf.uv[idx, 0]).astype(int), 0, w - 1)
+        v = np.clip(np.rint(kf.uv[idx, 1]).astype(int), 0, h - 1)
+        pix = frame.image[v, u]
+        store.color[pid] = pix[:, ::-1] if pix.ndim == 2 else np.repeat(pix[:, None], 3, axis=1)
 
     def _record(self, timestamp: float, T_world_cam: np.ndarray, ref_kf: int | None) -> None:
         kf = self.map.keyframes.get(ref_kf) if ref_kf is not None else None

@@ -24,6 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--start-frame", type=int, default=0, help="first frame to use")
     p.add_argument("--viz", metavar="rerun[:FILE.rrd]",
                    help="stream to a rerun viewer, or record to FILE.rrd (needs the viz extra)")
+    p.add_argument("--dense", action="store_true",
+                   help="also fuse the keyframes into a TSDF mesh: mesh.ply, dense.ply (rgbd/stereo; dense extra)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_path(
         args.path, args.output, sensor=args.sensor, dataset=args.dataset, config=args.config,
         overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
-        progress=not args.no_progress, viz=args.viz,
+        progress=not args.no_progress, viz=args.viz, dense=args.dense,
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \
@@ -43,5 +45,8 @@ def run(args: argparse.Namespace) -> int:
     print(line)
     if "ate_rmse" in s:
         print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses")
+    if "dense" in s:
+        d = s["dense"]
+        print(f"dense map: {d.get('mesh_vertices', d.get('vertices', '?'))} mesh vertices -> {d.get('mesh', '')}")
     print(f"results in {Path(args.output)}")
     return 0

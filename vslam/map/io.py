@@ -90,7 +90,7 @@ KEYFRAME_FIELD_SHAPES: dict[str, tuple[int, ...]] = {
 KEYPOINT_COUNT_FIELD = "uv"  # its length is the keyframe's keypoint count N_k
 # MapPointStore columns documented in format version 1 (any array column is saved generically).
 POINT_COLUMNS = ("position", "normal", "min_distance", "max_distance", "found", "visible", "n_obs",
-                 "first_kf", "last_seen_kf", "alive", "descriptor")
+                 "first_kf", "last_seen_kf", "alive", "color", "descriptor")
 # Map attributes handled explicitly; any other scalar attribute is saved in map.json.
 MAP_STRUCTURES = ("keyframes", "points", "covisibility")
 

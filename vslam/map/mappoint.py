@@ -56,6 +56,7 @@ class MapPointStore:
         self.first_kf = np.full(capacity, -1, dtype=np.int64)
         self.last_seen_kf = np.full(capacity, -1, dtype=np.int64)
         self.alive = np.zeros(capacity, dtype=bool)
+        self.color = np.zeros((capacity, 3), dtype=np.uint8)  # RGB sampled from the creating keyframe's image
         self.descriptor: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -86,6 +87,7 @@ class MapPointStore:
         self.first_kf = grow(self.first_kf, -1)
         self.last_seen_kf = grow(self.last_seen_kf, -1)
         self.alive = grow(self.alive, False)
+        self.color = grow(self.color, 0)
         if self.descriptor is not None:
             self.descriptor = grow(self.descriptor, 0)
         self._cap = cap
@@ -152,7 +154,7 @@ class MapPointStore:
         remap = np.full(self._n + 1, -1, dtype=np.int64)  # index -1 maps to -1 as well
         remap[keep] = np.arange(len(keep))
         for name in ("position", "normal", "min_distance", "max_distance", "found", "visible",
-                     "n_obs", "first_kf", "last_seen_kf", "alive"):
+                     "n_obs", "first_kf", "last_seen_kf", "alive", "color"):
             a = getattr(self, name)
             a[: len(keep)] = a[keep]
             a[len(keep): self._n] = 0 if a.dtype != bool else False

@@ -14,7 +14,7 @@ from __future__ import annotations
 from vslam.datasets.synthetic.plot import plot_ground_truth_topdown
 from vslam.datasets.synthetic.renderer import Renderer, default_renderer, render
 from vslam.datasets.synthetic.scene import (
-    Box, Face, Scene, SceneSpec, build_scene, default_scene, sample_surface_points,
+    Box, Face, Scene, SceneSpec, build_scene, default_scene, distance_to_scene, sample_surface_points,
 )
 from vslam.datasets.synthetic.sequence import (
     SyntheticConfig, SyntheticSequence, add_depth_noise, add_pixel_noise, missing_depth_mask, right_from_left,
@@ -25,6 +25,7 @@ from vslam.datasets.synthetic.writer import DEPTH_SCALE, depth_to_png, render_se
 __all__ = [
     "Box", "DEPTH_SCALE", "Face", "Renderer", "Scene", "SceneSpec", "SyntheticConfig", "SyntheticSequence",
     "add_depth_noise", "add_pixel_noise", "build_scene", "default_renderer", "default_scene", "depth_to_png",
+    "distance_to_scene",
     "forward_path", "look_rotation", "loop_path", "make_path", "missing_depth_mask",
     "plot_ground_truth_topdown", "render", "render_sequence", "right_from_left", "sample_surface_points",
 ]

@@ -302,3 +302,17 @@ def sample_surface_points(scene: Scene, n: int, rng: np.random.Generator) -> tup
     pts[rows, u_axis] = rng.uniform(u_range[:, 0], u_range[:, 1])
     pts[rows, v_axis] = rng.uniform(v_range[:, 0], v_range[:, 1])
     return pts, idx
+
+
+def distance_to_scene(points: np.ndarray, scene: Scene | None = None) -> np.ndarray:
+    """Euclidean distance of ``(N, 3)`` world points to the nearest face (rectangle) of ``scene``
+    (default: the default room): the exact ground truth for mapping accuracy checks."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    best = np.full(len(points), np.inf)
+    for f in (scene or default_scene()).faces:
+        lo, hi = np.zeros(3), np.zeros(3)
+        lo[f.axis] = hi[f.axis] = f.offset
+        lo[f.u_axis], hi[f.u_axis] = f.u_range
+        lo[f.v_axis], hi[f.v_axis] = f.v_range
+        best = np.minimum(best, np.linalg.norm(points - np.clip(points, lo, hi), axis=1))
+    return best

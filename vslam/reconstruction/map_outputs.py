@@ -1,0 +1,61 @@
+"""The map files every run writes: the sparse point cloud, the topological map and the saved map.
+
+* ``sparse.ply``: alive map points with their colour (binary PLY).
+* ``topology.json`` / ``topology.png``: a graph of places, one node per keyframe, with
+  ``odometry`` edges (consecutive keyframes of a map segment), ``covisibility`` edges (keyframes
+  sharing at least ``min_covisibility`` map points, weight = shared points) and ``loop`` edges.
+* ``map/``: the versioned map (:mod:`vslam.map.io`), reloadable for relocalization.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vslam.map.io import save_map
+from vslam.map.map import Map
+from vslam.reconstruction.sparse import export_sparse
+from vslam.reconstruction.topology import plot_topology, write_topology
+
+log = logging.getLogger(__name__)
+
+
+def topology_graph(slam_map: Map, loops: list[tuple[int, int, int]] = (), min_covisibility: int = 15
+                   ) -> tuple[list[dict], list[dict]]:
+    """Nodes and edges of the keyframe graph. ``loops`` are ``(query_kf_id, match_kf_id, inliers)``."""
+    kfs = sorted((k for k in slam_map.keyframes.values() if not k.bad), key=lambda k: k.id)
+    nodes = [{"id": int(k.id), "frame": int(k.frame_index), "T_world_cam": np.asarray(k.T_world_cam)} for k in kfs]
+    alive = {k.id for k in kfs}
+    edges: list[dict] = []
+    for a, b in zip(kfs[:-1], kfs[1:]):
+        if a.segment == b.segment:
+            edges.append({"source": int(a.id), "target": int(b.id), "kind": "odometry", "weight": 1.0})
+    for i, links in slam_map.covisibility.items():
+        for j, w in links.items():
+            if i < j and i in alive and j in alive and w >= min_covisibility:
+                edges.append({"source": int(i), "target": int(j), "kind": "covisibility", "weight": float(w)})
+    for q, m, inliers in loops:
+        if q in alive and m in alive:
+            edges.append({"source": int(m), "target": int(q), "kind": "loop", "weight": float(inliers)})
+    return nodes, edges
+
+
+def write_map_outputs(out_dir: str | Path, slam_map: Map, camera: Any = None, database: Any = None,
+                      loops_kf: list[tuple[int, int, int]] = (), metadata: dict | None = None) -> dict:
+    """Write ``sparse.ply``, ``topology.json``, ``topology.png`` and ``map/`` into ``out_dir``."""
+    out = Path(out_dir)
+    store = slam_map.points
+    n = len(store)
+    alive = store.alive[:n]
+    X = store.position[:n][alive]
+    colors = store.color[:n][alive]
+    written = {"sparse": export_sparse(out / "sparse.ply", X, colors if colors.any() else None)}
+    nodes, edges = topology_graph(slam_map, loops_kf)
+    if nodes:
+        written["topology"] = write_topology(out / "topology.json", nodes, edges)
+        written["topology_png"] = plot_topology(out / "topology.png", nodes, edges)
+    written["map"] = save_map(slam_map, out, database=database, camera=camera, metadata=metadata or {})
+    log.info("map outputs: %d points, %d keyframes -> %s", int(alive.sum()), len(nodes), out)
+    return {k: str(v) for k, v in written.items()}
