@@ -7,11 +7,18 @@ PnP RANSAC (or a 3D-3D alignment when the frame has depth) gives a pose, guided 
 projection and robust pose refinement give the inliers (:func:`vslam.loop.verification.verify`);
 the first candidate with ``min_inliers`` inliers wins.
 
-Hook for the tracker (the System builds it and passes it in)::
+For RGB-D / stereo the candidate keyframe's keypoints with depth (not only its map points) take
+part in the 3D-3D RANSAC, which matters on texture-poor scenes where keyframes keep few points.
 
-    result = relocalizer(obs)          # obs: uv_undist, descriptors, octave, depth, u_right
+Hook for the tracker (the System builds ``system.relocalizer``; the tracker would call it when
+``_pose_against_map`` fails, before counting the frame lost)::
+
+    result = relocalizer(obs, segment=self.segment)   # obs: uv_undist, descriptors, octave, depth, u_right
     if result is not None:
-        T_world_cam = result.T_world_cam      # and result.kp_idx -> result.point_ids matches
+        self.ref_kf = result.keyframe_id; self._local_ids = None
+        T, n = self._pose_against_map(obs, result.T_world_cam, relocalize=True)   # track the local map
+        if T is None: T, n = result.T_world_cam, result.n_inliers  # (obs.point_ids[result.kp_idx] = result.point_ids)
+        self.motion_model.reset(T)
 """
 from __future__ import annotations
 
