@@ -138,6 +138,7 @@ class System:
         self.add_keyframe_listener(self.loop_closer.on_keyframe)
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
                                        loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
+        self.tracker.relocalizer = self.relocalizer
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
@@ -272,6 +273,7 @@ class System:
             "frames_lost": self._n.get("lost", 0),
             "frames_initializing": self._n.get("initializing", 0),
             "map_segments": self.tracker.segment + 1,
+            "relocalizations": self.tracker.n_relocalized,
             "stage_ms": stage_ms,
             "sensor": self.sensor,
             "association": self.frontend_config.association,

@@ -48,3 +48,52 @@ def test_guided_match_picks_closest_descriptor_within_radius():
     # nothing within the radius: no match
     m, k, d = guided_match(proj + 100.0, map_desc, kp_uv + 1e4, kp_desc, radius=5.0)
     assert len(m) == 0
+
+
+def _guided_match_reference(proj_uv, map_desc, kp_uv, kp_desc, radius, max_distance, ratio):
+    """Plain per-map-point loop (test oracle only): all keypoints within ``radius`` (at most the 8
+    nearest), best/second best by Hamming distance (ties: nearer candidate first, as the KD-tree
+    returns them), then one map point per keypoint (the smallest distance, ties: lower map index)."""
+    bits = np.unpackbits(kp_desc, axis=1)
+    best = {}
+    for i, p in enumerate(proj_uv):
+        dpx = np.linalg.norm(kp_uv - p, axis=1)
+        near = np.argsort(dpx, kind="stable")[:8]
+        near = near[dpx[near] <= radius]
+        if len(near) == 0:
+            continue
+        hd = (bits[near] != np.unpackbits(map_desc[i])).sum(1)
+        o = np.argsort(hd, kind="stable")
+        second = hd[o[1]] if len(o) > 1 else np.inf
+        if hd[o[0]] <= max_distance and (ratio >= 1.0 or hd[o[0]] < ratio * second):
+            k = int(near[o[0]])
+            if k not in best or hd[o[0]] < best[k][1]:
+                best[k] = (i, int(hd[o[0]]))
+    ks = np.array(sorted(best), np.int64)
+    return np.array([best[k][0] for k in ks], np.int64), ks, np.array([best[k][1] for k in ks], np.float32)
+
+
+def test_guided_match_equals_plain_loop_with_ties():
+    """The vectorized matcher (packed-key sorts, 64-bit popcounts) gives exactly the loop's answer,
+    including distance ties (few-bit descriptors make many) and keypoints claimed twice."""
+    rng = np.random.default_rng(3)
+    kp_uv = rng.uniform(0, 200, (300, 2))
+    kp_desc = (rng.random((300, 32)) < 0.02).astype(np.uint8) * 255  # few set bytes: many equal distances
+    proj = kp_uv[rng.integers(0, 300, 250)] + rng.normal(0, 3.0, (250, 2))
+    map_desc = kp_desc[rng.integers(0, 300, 250)]
+    for ratio in (1.0, 0.9):
+        got = guided_match(proj, map_desc, kp_uv, kp_desc, radius=8.0, binary=True, max_distance=64.0, ratio=ratio)
+        want = _guided_match_reference(proj, map_desc, kp_uv, kp_desc, 8.0, 64.0, ratio)
+        assert len(want[0]) > 50
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+
+def test_descriptor_distance_equals_unpacked_bits():
+    rng = np.random.default_rng(4)
+    a = rng.integers(0, 256, (500, 32), dtype=np.uint8)
+    b = rng.integers(0, 256, (500, 32), dtype=np.uint8)
+    want = (np.unpackbits(a, axis=1) != np.unpackbits(b, axis=1)).sum(1)
+    np.testing.assert_array_equal(descriptor_distance(a, b, True), want)
+    pairwise = (np.unpackbits(a, axis=1)[:, None] != np.unpackbits(b[:3], axis=1)[None]).sum(-1)
+    np.testing.assert_array_equal(descriptor_distance(a[:, None], b[None, :3], True), pairwise)  # broadcast path

@@ -149,7 +149,9 @@ def grid_select(uv: np.ndarray, score: np.ndarray, cell_size: float, n_keep: int
     first = np.maximum.accumulate(np.where(start, idx, 0))
     rank = np.empty(n, np.int64)
     rank[order] = idx - first
-    return np.argsort(rank * span + srank)[:n_keep]
+    key = rank * span + srank  # unique: the n_keep smallest, in key order
+    part = np.argpartition(key, n_keep - 1)[:n_keep] if n_keep > 0 else np.zeros(0, np.int64)
+    return part[np.argsort(key[part])]
 
 
 class _Orientation:
@@ -195,7 +197,7 @@ class _Orientation:
         rows = f[k + (r1 + u + 1)] - f[k + (r1 - u)] - f[k + (r0 + u + 1)] + f[k + (r0 - u)]
         t, btm = -u * w1, (u + 1) * w1
         cols = f[k + (btm + d + 1)] - f[k + (btm + d)] - f[k + (t + d + 1)] + f[k + (t + d)]
-        # segment sums fit int32; the moments (< 2^31 * 31^2) are exact in float64
+        # segment sums fit int32; the moments are integers far below 2^53: exact in float64
         m01 = rows.astype(np.float64) @ self.dyf
         m10 = cols.astype(np.float64) @ self.dyf
         ang = np.degrees(np.arctan2(m01, m10))
@@ -424,12 +426,11 @@ def describe_orb(gray: np.ndarray, uv: np.ndarray, orb=None, orientation: _Orien
     if len(idx_ok) == 0:
         return Features.empty(True, 32, scale_factor)
     ang = orientation(gray, xi[ok], yi[ok])
-    kps = [cv2.KeyPoint(float(u), float(v), float(patch_size), float(a), 0.0, 0, i)
-           for i, (u, v, a) in enumerate(zip(uv[ok, 0], uv[ok, 1], ang))]
+    kps = _keypoints(uv[ok, 0], uv[ok, 1], ang, float(patch_size))
     kps_out, desc = orb.compute(gray, kps)
     if desc is None or not kps_out:
         return Features.empty(True, 32, scale_factor)
-    ids = np.array([k.class_id for k in kps_out], np.int64)
+    ids = _survivors(kps_out, len(kps))
     order = np.argsort(ids, kind="stable")
     ids, desc = ids[order], desc[order]
     sel = idx_ok[ids]

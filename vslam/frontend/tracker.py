@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -118,6 +118,9 @@ class Tracker:
         self.timers: dict[str, float] = {"features": 0.0, "association": 0.0, "pose": 0.0, "mapping": 0.0}
         self.n_frames = 0
         self.rng = np.random.default_rng(0)
+        # set by the System when loop closing is on: Observation -> Relocalization | None
+        self.relocalizer: Callable[..., Any] | None = None
+        self.n_relocalized = 0
 
     # ================================================================== per frame
     def track(self, frame: Frame) -> TrackOutput:
@@ -367,6 +370,8 @@ class Tracker:
             T_world_cam, n_inl = self._pose_2d2d(obs, klt_prev_idx)
         else:
             T_world_cam, n_inl = self._pose_against_map(obs, T_world_pred, relocalize=self.state == "lost")
+            if T_world_cam is None and self.relocalizer is not None:
+                T_world_cam, n_inl = self._relocalize(obs)
         if T_world_cam is None:
             return self._lost(frame, gray, obs)
         # ---------------------------------------------------------- keyframe?
@@ -404,6 +409,25 @@ class Tracker:
         self.T_world_last_good = T_world_cam.copy()
         self._set_prev(obs, gray)
         return TrackOutput(T_world_cam, "ok", is_kf, n_inl, self.ref_kf)
+
+    def _relocalize(self, obs: Observation) -> tuple[np.ndarray | None, int]:
+        """Tracking against the local map failed: find the pose among all keyframes of this map
+        segment (bag-of-words candidates + PnP, :class:`vslam.loop.relocalization.Relocalizer`),
+        then refine it against that keyframe's local map."""
+        r = self.relocalizer(obs, segment=self.segment)
+        if r is None:
+            return None, 0
+        self.ref_kf = r.keyframe_id
+        self._local_ids = None
+        T, n = self._pose_against_map(obs, r.T_world_cam, relocalize=True)
+        if T is None:
+            obs.point_ids[:] = -1
+            obs.point_ids[r.kp_idx] = r.point_ids
+            T, n = r.T_world_cam, r.n_inliers
+        self.motion_model.reset(T)
+        self.n_relocalized += 1
+        log.info("relocalized against keyframe %d with %d inliers", r.keyframe_id, n)
+        return T, n
 
     def _lost(self, frame, gray, obs) -> TrackOutput:
         self.n_lost_run += 1
