@@ -1,0 +1,61 @@
+"""``vslam localize``: outputs on a small synthetic map, and clean errors for missing/corrupt maps."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vslam.api import run_path
+from vslam.cli import main
+from vslam.datasets.synthetic import SyntheticConfig, render_sequence
+from vslam.eval.trajectory import read_tum
+
+
+@pytest.fixture(scope="module")
+def small_map(tmp_path_factory):
+    root = tmp_path_factory.mktemp("locmap")
+    cfg = SyntheticConfig(n_frames=16, laps=0.06, width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5,
+                          stereo=False, pixel_noise=1.0, seed=5)
+    render_sequence(root / "seq", cfg)
+    run_path(root / "seq", root / "run", sensor="rgbd", max_frames=12)
+    return root / "seq", root / "run"
+
+
+def test_localize_writes_trajectory_and_stats(small_map, tmp_path, capsys):
+    seq, run = small_map
+    out = tmp_path / "loc"
+    rc = main(["localize", str(run), str(seq), "--start-frame", "8", "--max-frames", "8", "-o", str(out),
+               "--no-progress", "--set", "localize.min_inliers=25"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "8/8 frames localized" in text and "ATE RMSE" in text
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["frames"] == 8 and stats["localized"] == 8 and stats["lost"] == 0
+    assert stats["relocalizations"] >= 1 and stats["tracked"] + stats["relocalizations"] == 8
+    assert stats["ate_rmse"] < 0.03 and stats["matched_poses"] == 8
+    assert set(stats["stage_ms"]) >= {"features", "relocalize"}
+    traj = read_tum(out / "trajectory.txt")
+    assert len(traj) == 8 and np.all(np.diff(traj.timestamps) > 0)
+
+
+def test_missing_and_corrupt_map_give_clean_errors(small_map, tmp_path, capsys):
+    seq, run = small_map
+    rc = main(["localize", str(tmp_path / "nope"), str(seq), "-o", str(tmp_path / "o1")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "nope" in err and "Traceback" not in err
+    # a corrupt copy of the map: truncate the points file
+    bad = tmp_path / "bad"
+    (bad / "map").mkdir(parents=True)
+    for f in (run / "map").iterdir():
+        (bad / "map" / f.name).write_bytes(f.read_bytes())
+    pts = bad / "map" / "points.npz"
+    pts.write_bytes(pts.read_bytes()[: pts.stat().st_size // 2])
+    rc = main(["localize", str(bad), str(seq), "-o", str(tmp_path / "o2")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "points.npz" in err and "Traceback" not in err
+    # a bad override is a config error, also exit 2
+    rc = main(["localize", str(run), str(seq), "-o", str(tmp_path / "o3"), "--set", "localize.nope=1"])
+    assert rc == 2

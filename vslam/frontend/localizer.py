@@ -1,0 +1,409 @@
+"""Localization in a fixed, previously built map (``vslam localize``).
+
+Each frame is either
+
+* **relocalized** globally when there is no pose (cold start, or after losing track): BoW
+  candidates from the keyframe database, descriptor matching to the candidate's covisible map
+  points, PnP RANSAC and guided-matching refinement (:class:`vslam.loop.relocalization.Relocalizer`,
+  ORB-SLAM sec. V-C), then one tracking pass against the local map at that pose; or
+* **tracked** against the map: a constant-velocity prediction, projection of the map points of
+  the keyframes near the predicted pose, guided matching and robust pose refinement
+  (ORB-SLAM's ``TrackWithMotionModel`` + ``TrackLocalMap``, Mur-Artal et al. 2015, sec. V-B/D).
+  With too few inliers the frame falls back to global relocalization.
+
+Frames that cannot be localized get ``T_world_cam = None`` (never a guess). The map is never
+modified: no points, keyframes or statistics (``found``/``visible``) are written.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vslam.errors import ConfigError
+from vslam.features import create_detector
+from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
+from vslam.frontend.observation import sample_depth
+from vslam.frontend.pose import inv_T, pnp_ransac, refine_pose
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.map import Map
+
+log = logging.getLogger(__name__)
+
+RGBD_VIRTUAL_BASELINE = 0.08  # metres; the virtual right camera of RGB-D (as the tracker / loop closer)
+
+
+@dataclass(frozen=True)
+class LocalizerConfig:
+    """Settings of map-based localization (``--set localize.KEY=VALUE``).
+
+    Attributes:
+        min_inliers: inliers after the final (local map) refinement to accept a tracked or
+            relocalized pose (relocalization itself needs ``loop.relocalization.min_inliers``).
+        reloc_min_inliers: inliers a global relocalization needs (replaces
+            ``loop.relocalization.min_inliers``, tuned for SLAM; None keeps that one). The map is
+            fixed and verified by guided matching, so a lower bar than SLAM's (40) recovers sooner.
+        min_first_pass_inliers: inliers of the first (prediction-guided) pass needed to go on to
+            the local-map pass (ORB-SLAM's TrackWithMotionModel accepts 10).
+        search_radius_px: guided-matching radius around the constant-velocity prediction.
+        search_radius_wide_px: retry radius when the first pass finds too few matches.
+        refine_radius_px: radius of the second matching pass at the refined pose.
+        n_near_keyframes: keyframes nearest to the predicted pose whose points are projected.
+        n_covisible: covisible keyframes of the reference keyframe added to the local map.
+        max_view_angle_deg: a nearby keyframe must look within this angle of the predicted view.
+        match_ratio / max_descriptor_distance: guided-matching acceptance (Hamming bits).
+        max_velocity_m / max_velocity_deg: a constant-velocity step larger than this is reset to
+            zero motion (a bad previous pose must not throw the prediction away).
+        max_step_m / max_step_deg: a tracked pose farther than this from the constant-velocity
+            prediction is rejected (the frame is relocalized globally instead): tracking that
+            locked onto wrong matches must not be reported.
+        max_point_view_angle_deg / check_point_distance: a map point is projected only when seen
+            within this angle of its mean viewing direction and (if checked) within its
+            scale-invariance distance range (ORB-SLAM's ``isInFrustum``).
+        use_depth: RGB-D / stereo depth as extra (virtual right camera) residuals in refinement.
+        always_ransac: PnP RANSAC on every frame's first matching pass (default: only when the
+            prediction has no velocity, i.e. right after a relocalization, or after a failed pass).
+    """
+
+    min_inliers: int = 20
+    min_first_pass_inliers: int = 12
+    reloc_min_inliers: int | None = 30
+    search_radius_px: float = 12.0
+    search_radius_wide_px: float = 30.0
+    refine_radius_px: float = 5.0
+    n_near_keyframes: int = 8
+    n_covisible: int = 10
+    max_view_angle_deg: float = 70.0
+    match_ratio: float = 0.9
+    max_descriptor_distance: float = 64.0
+    max_velocity_m: float = 0.3
+    max_velocity_deg: float = 30.0
+    max_step_m: float = 0.1
+    max_step_deg: float = 10.0
+    use_depth: bool = True
+    max_point_view_angle_deg: float = 60.0
+    check_point_distance: bool = True
+    always_ransac: bool = False
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 6 or self.min_first_pass_inliers < 6:
+            raise ConfigError(f"localize.min_inliers={self.min_inliers} / min_first_pass_inliers="
+                              f"{self.min_first_pass_inliers}: must be >= 6")
+        if min(self.search_radius_px, self.search_radius_wide_px, self.refine_radius_px) <= 0:
+            raise ConfigError("localize search radii must be > 0 pixels")
+        if self.reloc_min_inliers is not None and self.reloc_min_inliers < 6:
+            raise ConfigError(f"localize.reloc_min_inliers={self.reloc_min_inliers}: must be >= 6")
+        if self.n_near_keyframes < 1 or self.n_covisible < 0:
+            raise ConfigError("localize.n_near_keyframes must be >= 1 and n_covisible >= 0")
+
+
+@dataclass
+class LocalizeResult:
+    """The outcome for one frame: ``state`` is ``localized`` (global relocalization), ``tracking``
+    (tracked from the previous pose) or ``lost`` (``T_world_cam`` None)."""
+
+    T_world_cam: np.ndarray | None
+    state: str
+    n_inliers: int
+
+
+@dataclass
+class _Obs:
+    """The frame's keypoints, in the attribute layout the Relocalizer expects."""
+
+    uv: np.ndarray
+    uv_undist: np.ndarray
+    descriptors: np.ndarray
+    octave: np.ndarray
+    depth: np.ndarray
+    u_right: np.ndarray | None
+
+
+class Localizer:
+    """Streaming localizer: ``localizer.localize(frame) -> LocalizeResult`` (see the module docstring).
+
+    Args:
+        slam_map: the loaded map (read only).
+        database: its keyframe database, or None (then one is built from the keyframes' descriptors).
+        camera: intrinsics of the frames to localize.
+        config: the root :class:`vslam.config.Config` (its ``features`` and ``loop.relocalization``
+            sections are used), or None for defaults.
+        sensor: ``mono``, ``stereo`` or ``rgbd`` (depth is used only as extra constraints).
+        localize_config: :class:`LocalizerConfig`.
+        vocabulary: BoW vocabulary (default: the packaged one).
+    """
+
+    def __init__(self, slam_map: Map, database: Any, camera: PinholeCamera, config: Any = None,
+                 sensor: str = "mono", localize_config: LocalizerConfig | None = None,
+                 vocabulary: Any = None) -> None:
+        from vslam.config import Config
+        from vslam.loop import load_default_vocabulary
+        from vslam.loop.relocalization import Relocalizer
+
+        cfg = config if config is not None else Config()
+        self.config = cfg
+        self.cfg = localize_config or LocalizerConfig()
+        self.map = slam_map
+        self.camera = camera
+        self.sensor = sensor
+        self.detector = create_detector(cfg.features)
+        self.scale_factor = float(getattr(cfg.features, "scale_factor", 1.2))
+        if sensor == "stereo":
+            self.bf = camera.fx * float(camera.baseline or 0.0)
+        elif sensor == "rgbd":
+            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
+        else:
+            self.bf = 0.0
+        vocab = vocabulary if vocabulary is not None else load_default_vocabulary()
+        reloc_cfg = cfg.loop.relocalization
+        if self.cfg.reloc_min_inliers is not None:
+            reloc_cfg = dataclasses.replace(reloc_cfg, min_inliers=self.cfg.reloc_min_inliers)
+        self.relocalizer = Relocalizer(slam_map, camera, sensor, vocab, database, reloc_cfg,
+                                       self.scale_factor, self.bf)
+        if database is None:  # a private database, filled once from the map's keyframes
+            for kf_id in sorted(slam_map.keyframes):
+                self.relocalizer.add_keyframe(slam_map.keyframes[kf_id])
+        # keyframe geometry for choosing the local map near a pose
+        kfs = [kf for kf in (slam_map.keyframes[i] for i in sorted(slam_map.keyframes)) if not getattr(kf, "bad", False)]
+        self._kf_ids = np.array([kf.id for kf in kfs], dtype=np.int64)
+        T = np.stack([kf.T_world_cam for kf in kfs]) if kfs else np.zeros((0, 4, 4))
+        self._kf_centres = T[:, :3, 3]
+        self._kf_axes = T[:, :3, 2]
+        self._alive = slam_map.points.alive[: len(slam_map.points)].copy()
+        # state
+        self.T_world_last: np.ndarray | None = None
+        self.T_world_prev: np.ndarray | None = None
+        self.ref_kf: int | None = None
+        self.counts: dict[str, int] = defaultdict(int)
+        self.timers: dict[str, float] = defaultdict(float)
+
+    # ------------------------------------------------------------------ public
+    def reset(self) -> None:
+        """Forget the pose (the next frame is relocalized globally)."""
+        self.T_world_last = self.T_world_prev = None
+        self.ref_kf = None
+
+    def localize(self, frame: Any) -> LocalizeResult:
+        """Localize one :class:`~vslam.datasets.frame.Frame` in the map."""
+        self.counts["frames"] += 1
+        t0 = time.perf_counter()
+        obs = self._observe(frame)
+        self.timers["features"] += time.perf_counter() - t0
+        result: LocalizeResult | None = None
+        if self.T_world_last is not None:
+            t0 = time.perf_counter()
+            result = self._track(obs)
+            self.timers["track"] += time.perf_counter() - t0
+            if result is None:
+                self.counts["track_failures"] += 1
+        if result is None:
+            t0 = time.perf_counter()
+            result = self._relocalize(obs)
+            self.timers["relocalize"] += time.perf_counter() - t0
+        if result.T_world_cam is None:
+            self.counts["lost"] += 1
+            self.reset()
+        else:
+            self.counts[result.state] += 1
+            # velocity only between consecutive tracked frames: a relocalized pose may jump by the
+            # map's local inconsistency, so the next frame starts without a velocity
+            self.T_world_prev = self.T_world_last if result.state == "tracking" else None
+            self.T_world_last = result.T_world_cam
+        return result
+
+    def stats(self) -> dict:
+        """Counts (frames, tracking, localized, lost, track_failures, relocalization attempts) and
+        per-stage mean milliseconds."""
+        n = max(self.counts["frames"], 1)
+        return {
+            "frames": self.counts["frames"],
+            "tracked": self.counts["tracking"],
+            "relocalizations": self.counts["localized"],
+            "relocalization_attempts": self.relocalizer.attempts,
+            "track_failures": self.counts["track_failures"],
+            "implausible_steps": self.counts["implausible_steps"],
+            "lost": self.counts["lost"],
+            "stage_ms": {k: round(1000.0 * v / n, 2) for k, v in self.timers.items()},
+        }
+
+    # ------------------------------------------------------------------ features
+    def _observe(self, frame: Any) -> _Obs:
+        feats = self.detector.detect(frame.gray)
+        uv = np.asarray(feats.uv, dtype=float).reshape(-1, 2)
+        uv_undist = self.camera.undistort_points(uv) if len(uv) else uv
+        n = len(uv)
+        depth = np.full(n, np.nan)
+        if self.sensor == "rgbd" and getattr(frame, "depth", None) is not None and n:
+            fc = self.config.frontend
+            depth = sample_depth(frame.depth, uv, fc.min_depth, fc.max_depth)
+        u_right = uv_undist[:, 0] - self.bf / depth if (self.bf > 0 and self.cfg.use_depth) else None
+        desc = feats.descriptors if feats.descriptors is not None else np.zeros((0, 32), np.uint8)
+        return _Obs(uv, uv_undist, desc, np.asarray(feats.octave, dtype=np.int32).reshape(-1), depth, u_right)
+
+    # ------------------------------------------------------------------ local map
+    def _local_keyframes(self, T_world_cam: np.ndarray) -> list[int]:
+        """Keyframes nearest to the camera centre that look roughly the same way, plus the
+        covisible keyframes of the reference keyframe."""
+        cfg = self.cfg
+        if len(self._kf_ids) == 0:
+            return []
+        c, axis = T_world_cam[:3, 3], T_world_cam[:3, 2]
+        dist = np.linalg.norm(self._kf_centres - c, axis=1)
+        cos = self._kf_axes @ axis
+        ok = cos >= np.cos(np.radians(cfg.max_view_angle_deg))
+        cand = np.flatnonzero(ok) if ok.any() else np.arange(len(dist))
+        near = cand[np.argsort(dist[cand], kind="stable")[: cfg.n_near_keyframes]]
+        ids = self._kf_ids[near].tolist()
+        ref = self.ref_kf if self.ref_kf is not None else ids[0]
+        group = list(dict.fromkeys(ids + [ref] + self.map.covisible(ref, cfg.n_covisible)))
+        return group
+
+    def _local_points(self, group: list[int]) -> np.ndarray:
+        ids = self.map.local_point_ids(group)
+        ids = ids[ids < len(self._alive)]
+        return ids[self._alive[ids]]
+
+    # ------------------------------------------------------------------ tracking
+    def _predict(self) -> np.ndarray:
+        """Constant velocity: ``T_pred = T_last (T_prev^-1 T_last)``; large steps are dropped."""
+        T_last = self.T_world_last
+        if self.T_world_prev is None:
+            return T_last.copy()
+        V = inv_T(self.T_world_prev) @ T_last
+        ang = np.degrees(np.arccos(np.clip((np.trace(V[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+        if np.linalg.norm(V[:3, 3]) > self.cfg.max_velocity_m or ang > self.cfg.max_velocity_deg:
+            return T_last.copy()
+        return T_last @ V
+
+    def _track(self, obs: _Obs) -> LocalizeResult | None:
+        """Track against the fixed map from the constant-velocity prediction; None if too few inliers."""
+        if len(obs.uv_undist) < self.cfg.min_inliers:
+            return None
+        T_world_pred = self._predict()
+        pts = self._local_points(self._local_keyframes(T_world_pred))
+        tree = cKDTree(obs.uv_undist)
+        if self.T_world_prev is None:
+            # no velocity yet (just relocalized): a window around the last pose may hold only wrong
+            # matches that agree on a wrong pose (repetitive texture); match the local map by
+            # descriptors alone and let PnP RANSAC find the pose
+            T_cw, kp, pid = self._match_unguided(obs, pts)
+        else:
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_px, tree,
+                                                   ransac=self.cfg.always_ransac)
+        if len(kp) < self.cfg.min_first_pass_inliers:
+            # a poor prediction: wide window, and PnP RANSAC before refinement (the Huber refinement
+            # from a far-off guess can settle in a wrong minimum among the many wrong matches)
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_wide_px,
+                                                   tree, ransac=True)
+        if len(kp) < self.cfg.min_first_pass_inliers and self.T_world_prev is not None:
+            # still too few: the local map by descriptors alone (ORB-SLAM's TrackReferenceKeyFrame)
+            T_cw, kp, pid = self._match_unguided(obs, pts)
+        if len(kp) < self.cfg.min_first_pass_inliers:
+            return None
+        res = self._finish(obs, T_cw, tree, "tracking", pts)
+        # (no velocity: the pose came from unguided matching + RANSAC, as robust as a relocalization)
+        if res is not None and self.T_world_prev is not None and not self._plausible(T_world_pred, res.T_world_cam):
+            self.counts["implausible_steps"] += 1
+            return None
+        return res
+
+    def _plausible(self, T_world_pred: np.ndarray, T_world_cam: np.ndarray) -> bool:
+        """Whether ``T_world_cam`` lies within ``max_step_m`` / ``max_step_deg`` of the prediction."""
+        D = inv_T(T_world_pred) @ T_world_cam
+        ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+        return bool(np.linalg.norm(D[:3, 3]) <= self.cfg.max_step_m and ang <= self.cfg.max_step_deg)
+
+    def _finish(self, obs: _Obs, T_cw: np.ndarray, tree: cKDTree, state: str,
+                pts: np.ndarray | None = None) -> LocalizeResult | None:
+        """Second pass (TrackLocalMap): the local map around the refined pose, tight radius."""
+        T_world = inv_T(T_cw)
+        self.ref_kf = self._nearest_keyframe(T_world)
+        pts2 = self._local_points(self._local_keyframes(T_world))
+        if pts is not None:
+            pts2 = np.union1d(pts, pts2)
+        T_cw2, kp, pid = self._match_and_refine(obs, pts2, T_cw, self.cfg.refine_radius_px, tree)
+        if len(kp) < self.cfg.min_inliers:
+            return None
+        return LocalizeResult(inv_T(T_cw2), state, int(len(kp)))
+
+    def _nearest_keyframe(self, T_world_cam: np.ndarray) -> int | None:
+        if len(self._kf_ids) == 0:
+            return None
+        dist = np.linalg.norm(self._kf_centres - T_world_cam[:3, 3], axis=1)
+        cos = self._kf_axes @ T_world_cam[:3, 2]
+        dist = np.where(cos >= np.cos(np.radians(self.cfg.max_view_angle_deg)), dist, dist + 1e3)
+        return int(self._kf_ids[int(np.argmin(dist))])
+
+    def _match_unguided(self, obs: _Obs, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ratio + mutual descriptor matching of the keypoints to ``pts``, PnP RANSAC, refinement."""
+        store = self.map.points
+        empty = np.zeros(0, np.int64)
+        if len(pts) < 6 or store.descriptor is None or len(obs.descriptors) < 6:
+            return np.eye(4), empty, empty
+        m, k = brute_force_match(store.descriptor[pts], obs.descriptors, True, ratio=0.8,
+                                 max_distance=self.cfg.max_descriptor_distance)
+        if len(m) < self.cfg.min_first_pass_inliers:
+            return np.eye(4), empty, empty
+        pid = pts[m]
+        T_cw, inl = pnp_ransac(store.position[pid], obs.uv_undist[k], self.camera.K, None,
+                               self.relocalizer.config.reproj_px, 200)
+        if T_cw is None or inl.sum() < self.cfg.min_first_pass_inliers:
+            return np.eye(4), empty, empty
+        k, pid = k[inl], pid[inl]
+        sigma = np.power(self.scale_factor, obs.octave[k].astype(float))
+        ur = None if obs.u_right is None else obs.u_right[k]
+        T_cw, inl = refine_pose(T_cw, store.position[pid], obs.uv_undist[k], self.camera.K, sigma, ur, self.bf)
+        return T_cw, k[inl], pid[inl]
+
+    def _match_and_refine(self, obs: _Obs, pts: np.ndarray, T_cw: np.ndarray, radius: float, tree: cKDTree,
+                          ransac: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Project ``pts`` at ``T_cw``, guided-match within ``radius`` px, refine the pose (Huber
+        Gauss-Newton with the chi-square inlier test). Returns ``(T_cam_world, kp_idx, point_ids)`` of
+        the inliers. ``ransac``: PnP RANSAC on the matches first (the refinement starts from its pose)."""
+        store = self.map.points
+        empty = np.zeros(0, np.int64)
+        if len(pts) == 0 or store.descriptor is None:
+            return T_cw, empty, empty
+        vis, proj, _ = project_local_points(store, pts, T_cw, self.camera,
+                                            max_view_angle_cos=float(np.cos(np.radians(self.cfg.max_point_view_angle_deg))),
+                                            check_distance=self.cfg.check_point_distance)
+        if len(vis) < 6:
+            return T_cw, empty, empty
+        m, k, _ = guided_match(proj, store.descriptor[vis], obs.uv_undist, obs.descriptors, radius, True,
+                               self.cfg.max_descriptor_distance, self.cfg.match_ratio, kp_tree=tree)
+        if len(m) < 6:
+            return T_cw, empty, empty
+        pid = vis[m]
+        if ransac:
+            T_r, inl = pnp_ransac(store.position[pid], obs.uv_undist[k], self.camera.K, T_cw,
+                                  self.relocalizer.config.reproj_px, 200)
+            if T_r is None or inl.sum() < self.cfg.min_first_pass_inliers:
+                return T_cw, empty, empty
+            T_cw = T_r
+        sigma = np.power(self.scale_factor, obs.octave[k].astype(float))
+        ur = None if obs.u_right is None else obs.u_right[k]
+        T_cw2, inl = refine_pose(T_cw, store.position[pid], obs.uv_undist[k], self.camera.K, sigma, ur, self.bf)
+        if not np.all(np.isfinite(T_cw2)):
+            return T_cw, empty, empty
+        return T_cw2, k[inl], pid[inl]
+
+    # ------------------------------------------------------------------ relocalization
+    def _relocalize(self, obs: _Obs) -> LocalizeResult:
+        """Global relocalization, then one local-map tracking pass at the relocalized pose."""
+        reloc = self.relocalizer(obs) if len(obs.descriptors) else None
+        if reloc is None:
+            return LocalizeResult(None, "lost", 0)
+        self.ref_kf = int(reloc.keyframe_id)
+        tree = cKDTree(obs.uv_undist)
+        res = self._finish(obs, inv_T(reloc.T_world_cam), tree, "localized")
+        if res is None:
+            if reloc.n_inliers >= max(self.cfg.min_inliers, self.relocalizer.config.min_inliers):
+                return LocalizeResult(reloc.T_world_cam, "localized", int(reloc.n_inliers))
+            return LocalizeResult(None, "lost", int(reloc.n_inliers))
+        return res
