@@ -7,7 +7,8 @@ quantile (5.991 for 2 dof monocular, 7.815 for 3 dof stereo), then refines witho
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 from vslam.errors import ConfigError
 
@@ -131,3 +132,49 @@ class EKFConfig:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"EKF config {name} must be > 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class BackendConfig:
+    """Which backend runs and how.
+
+    Attributes:
+        type: ``graph`` (windowed bundle adjustment + pose graph / global BA) or ``ekf`` (a
+            constant-velocity extended Kalman filter over the camera pose).
+        local_ba: run windowed BA after each keyframe (graph backend).
+        mode: ``deterministic`` (local mapping inline: the same result every run) or ``realtime``
+            (local mapping in a background worker so tracking never waits).
+        final_ba: run a full global bundle adjustment at the end of the run.
+        covisible_keyframes: local BA window = the ``local.window_size`` latest keyframes plus this
+            many strongest covisibility neighbours of the new keyframe.
+        max_fixed_keyframes: at most this many keyframes outside the window (those sharing most points
+            with it) are added as constant poses (the gauge).
+        cull_min_observations: a point born two keyframes ago that fewer keyframes observe is culled
+            (ORB-SLAM MapPointCulling; 0 or 1 disables).
+        cull_keyframes: flag redundant keyframes bad (ORB-SLAM KeyFrameCulling).
+        redundant_ratio: fraction of a keyframe's points seen by >= 3 others that makes it redundant.
+        stereo_far_baselines: stereo observations of points farther than this many baselines enter BA
+            as monocular ones (ORB-SLAM2's close/far split at 35-40; 0 keeps every disparity).
+        fuse: before each local BA, match the window's points into the new keyframe and the new
+            keyframe's points into the window (ORB-SLAM2 SearchInNeighbors): adds observations and
+            merges duplicate points (needs descriptors, i.e. ``frontend.association=match``).
+        fuse_radius_px / fuse_max_descriptor_distance: search radius and descriptor threshold (Hamming).
+    """
+
+    type: Literal["graph", "ekf"] = "graph"
+    local_ba: bool = True
+    mode: Literal["deterministic", "realtime"] = "deterministic"
+    final_ba: bool = False
+    covisible_keyframes: int = 10
+    max_fixed_keyframes: int = 20
+    cull_min_observations: int = 2
+    cull_keyframes: bool = False
+    redundant_ratio: float = 0.9
+    stereo_far_baselines: float = 35.0
+    fuse: bool = True
+    fuse_radius_px: float = 4.0
+    fuse_max_descriptor_distance: float = 50.0
+    local: LocalBAConfig = field(default_factory=LocalBAConfig)
+    global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)
+    pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    ekf: EKFConfig = field(default_factory=EKFConfig)

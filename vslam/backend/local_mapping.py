@@ -37,48 +37,18 @@ import logging
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bundle_adjustment
-from vslam.backend.config import GlobalBAConfig, LocalBAConfig
+from vslam.backend.config import BackendConfig
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 
 LOG = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class LocalMappingConfig:
-    """What the mapper reads from :class:`vslam.config.BackendConfig` (see its docstring)."""
-
-    local_ba: bool = True
-    realtime: bool = False
-    local: LocalBAConfig = field(default_factory=LocalBAConfig)
-    global_ba: GlobalBAConfig = field(default_factory=GlobalBAConfig)
-    covisible_keyframes: int = 10
-    max_fixed_keyframes: int = 20
-    cull_min_observations: int = 2
-    cull_keyframes: bool = False
-    redundant_ratio: float = 0.9
-    stereo_far_baselines: float = 35.0
-    fuse: bool = True
-    fuse_radius_px: float = 4.0
-    fuse_max_descriptor_distance: float = 50.0
-
-    @classmethod
-    def from_backend(cls, backend: Any) -> "LocalMappingConfig":
-        """Build from a :class:`vslam.config.BackendConfig` (missing fields keep their defaults)."""
-        names = ("covisible_keyframes", "max_fixed_keyframes", "cull_min_observations", "cull_keyframes",
-                 "redundant_ratio", "stereo_far_baselines",
-                 "fuse", "fuse_radius_px", "fuse_max_descriptor_distance")
-        kw = {n: getattr(backend, n) for n in names if hasattr(backend, n)}
-        return cls(local_ba=backend.local_ba, realtime=backend.mode == "realtime", local=backend.local,
-                   global_ba=backend.global_ba, **kw)
 
 
 @dataclass
@@ -103,18 +73,14 @@ class LocalMapper:
         map_: the shared map.
         camera: intrinsics (with ``baseline`` for stereo).
         sensor: ``mono``, ``stereo`` or ``rgbd``.
-        config: a :class:`LocalMappingConfig` or a :class:`vslam.config.BackendConfig`.
+        config: the backend's :class:`~vslam.backend.config.BackendConfig` (default: its defaults).
         scale_factor: feature pyramid scale; an observation at octave ``o`` has sigma ``scale_factor ** o`` px.
         lock: the map lock shared with tracking (realtime mode); a private one when None.
     """
 
-    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: Any = None,
+    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: BackendConfig | None = None,
                  scale_factor: float = 1.2, lock: threading.RLock | None = None) -> None:
-        if config is None:
-            config = LocalMappingConfig()
-        elif not isinstance(config, LocalMappingConfig):
-            config = LocalMappingConfig.from_backend(config)
-        self.config = config
+        self.config = config if config is not None else BackendConfig()
         self.map = map_
         self.camera = camera
         self.sensor = sensor
@@ -139,7 +105,7 @@ class LocalMapper:
         """Keyframe listener: queue ``kf`` for local mapping."""
         if not self.config.local_ba:
             return
-        if self.config.realtime:
+        if self.config.mode == "realtime":
             if self._thread is None:
                 self._thread = threading.Thread(target=self._worker, name="vslam-local-mapping", daemon=True)
                 self._thread.start()
@@ -611,7 +577,7 @@ class LocalMapper:
     def stats(self) -> dict:
         t = np.asarray(self._times)
         out: dict = dict(self.counts)
-        out["mode"] = "realtime" if self.config.realtime else "deterministic"
+        out["mode"] = "realtime" if self.config.mode == "realtime" else "deterministic"
         out["local_ba_ms_mean"] = round(1e3 * float(t.mean()), 2) if len(t) else 0.0
         out["local_ba_ms_median"] = round(1e3 * float(np.median(t)), 2) if len(t) else 0.0
         out["local_ba_ms_total"] = round(1e3 * float(t.sum()), 1)
