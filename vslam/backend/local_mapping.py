@@ -365,18 +365,7 @@ class LocalMapper:
         a, b = p[dup], cur[dup]
         a, b = remap[a], remap[b]  # already fused earlier in this pass
         keep_a = store.n_obs[a] >= store.n_obs[b]
-        winner, loser = np.where(keep_a, a, b), np.where(keep_a, b, a)
-        sel = winner != loser
-        winner, loser = winner[sel], loser[sel]
-        _, first = np.unique(loser, return_index=True)
-        winner, loser = winner[first], loser[first]
-        if len(loser) == 0:
-            return 0
-        remap[loser] = winner
-        np.add.at(store.n_obs, winner, store.n_obs[loser])
-        store.alive[loser] = False
-        store.n_obs[loser] = 0
-        return int(len(loser))
+        return self.map.merge_points(np.where(keep_a, b, a), np.where(keep_a, a, b), remap)
 
     # ------------------------------------------------------------------ write-back and culling
     def _apply(self, problem: BAProblem, result: BAResult, ctx: _Context) -> None:

@@ -379,18 +379,7 @@ class LoopCloser:
         kf.point_ids[kp[free]] = pids[free]
         np.add.at(store.n_obs, pids[free], 1)
         dup = ~free & (cur != pids)
-        loser, winner = remap[cur[dup]], remap[pids[dup]]
-        sel = (loser != winner) & (loser >= 0) & (winner >= 0)
-        loser, winner = loser[sel], winner[sel]
-        _, first = np.unique(loser, return_index=True)
-        loser, winner = loser[first], winner[first]
-        if len(loser) == 0:
-            return 0
-        remap[loser] = winner
-        np.add.at(store.n_obs, winner, store.n_obs[loser])
-        store.alive[loser] = False
-        store.n_obs[loser] = 0
-        return int(len(loser))
+        return self.map.merge_points(remap[cur[dup]], remap[pids[dup]], remap)
 
     # ------------------------------------------------------------------ stats
     def loop_list(self) -> list[list[int]]:

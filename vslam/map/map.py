@@ -93,6 +93,25 @@ class Map:
             p.alive[:n][bad] = False
         return int(bad.sum())
 
+    def merge_points(self, loser: np.ndarray, winner: np.ndarray, remap: np.ndarray) -> int:
+        """Fuse duplicated map points: each ``loser[i]`` becomes ``winner[i]`` (ORB-SLAM's
+        MapPoint::Replace). Pairs that are the same point or invalid (``-1``) are skipped, a loser
+        is merged once; its observation count moves to the winner and it dies. ``remap`` (old id ->
+        surviving id, ``remap[-1] == -1``) records the merges so the caller can rewrite
+        ``KeyFrame.point_ids``. Returns the number of points merged away."""
+        sel = (loser != winner) & (loser >= 0) & (winner >= 0)
+        loser, winner = loser[sel], winner[sel]
+        _, first = np.unique(loser, return_index=True)
+        loser, winner = loser[first], winner[first]
+        if len(loser) == 0:
+            return 0
+        store = self.points
+        remap[loser] = winner
+        np.add.at(store.n_obs, winner, store.n_obs[loser])
+        store.alive[loser] = False
+        store.n_obs[loser] = 0
+        return int(len(loser))
+
     def limit_points(self, max_points: int, keep_kf_ids: list[int]) -> None:
         """Keep memory flat: when over ``max_points``, drop the points last seen longest ago (outside
         the local keyframes) and compact the store, remapping every keyframe's ``point_ids``."""
