@@ -127,6 +127,7 @@ def make_row(job: Job, stats: dict, error: str | None = None, frame_rate: float 
         "loops": len(loops) if isinstance(loops, list) else loops,
         "frame_rate": round(frame_rate, 4) if frame_rate else None,
         "system": job.system,
+        "paced": stats.get("paced"),  # a baseline fed at the sensor rate (fps capped by it)
         "data": str(job.run.data),
         "output": job.rel_output,
         "status": "failed" if error else "ok",
@@ -376,7 +377,9 @@ def run_benchmark(
         runner: the SLAM runner (default :func:`vslam.api.run_path`).
         on_result: ``on_result(row, n_done, n_total)`` after each job (progress output).
         baselines: ``{system_name: runner}`` run on the same jobs as well, their rows named
-            ``<run>@<system>`` (e.g. ORB-SLAM3, see :mod:`vslam.bench.orbslam3_baseline`).
+            ``<run>@<system>`` (e.g. ORB-SLAM3, see :mod:`vslam.bench.orbslam3_baseline`). With a
+            one-at-a-time local executor each job's baselines run right after it (same machine
+            load for both systems); otherwise all vslam jobs first, then each baseline's.
     """
     from vslam.bench.results import write_results
 
@@ -389,6 +392,10 @@ def run_benchmark(
         bjobs = [Job(replace(j.run, name=f"{j.run.name}@{system}"), j.repeat,
                      output / "runs" / f"{j.run.name}@{system}" / str(j.repeat), system) for j in jobs]
         groups.append((bjobs, base_runner))
+    if len(groups) > 1 and getattr(executor, "name", None) == "local" and getattr(executor, "workers", 1) <= 1:
+        # one job at a time anyway: run each job's baselines right after it, so both systems are
+        # timed under the same machine load (rows: run, run@baseline, next run, ...)
+        groups = [([g[0][i]], g[1]) for i in range(len(jobs)) for g in groups]
     total = sum(len(g[0]) for g in groups)
     rows: list[dict] = []
     offset = 0

@@ -58,6 +58,7 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
             "ok": len(ok),
             "frames": next((r.get("frames") for r in ok if r.get("frames") is not None), None),
             "errors": sorted({str(r["error"]) for r in group if r.get("error")}),
+            "paced": any(bool(r.get("paced")) for r in ok),
         }
         tracked = [r["tracked"] / r["frames"] for r in ok if r.get("frames") and r.get("tracked") is not None]
         metrics = {key: [r.get(key) for r in ok] for key, _, _ in METRICS}
@@ -95,6 +96,60 @@ def markdown_table(summary: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _ratio(ours: dict | None, theirs: dict | None) -> float | None:
+    if ours is None or theirs is None or not theirs["median"]:
+        return None
+    return ours["median"] / theirs["median"]
+
+
+def baseline_comparison(summary: Sequence[dict]) -> list[dict]:
+    """vslam next to each baseline (rows ``<run>@<system>``) of the same benchmark: per pair the
+    medians of ATE RMSE, frames/s and tracked share, and the ratios vslam / baseline
+    (``ate_ratio`` < 1: vslam is more accurate; ``fps_ratio`` > 1: vslam is faster)."""
+    by_name = {s["name"]: s for s in summary}
+    out = []
+    for base in summary:
+        run, sep, system = base["name"].rpartition("@")
+        if not sep or base.get("system", "vslam") == "vslam" or run not in by_name:
+            continue
+        ours = by_name[run]
+
+        def med(s: dict, key: str) -> float | None:
+            return s[key]["median"] if s.get(key) else None
+
+        out.append({
+            "run": run, "system": system, "sensor": ours.get("sensor") or base.get("sensor"),
+            "ate_vslam": med(ours, "ate_rmse"), "ate_baseline": med(base, "ate_rmse"),
+            "ate_ratio": _ratio(ours.get("ate_rmse"), base.get("ate_rmse")),
+            "fps_vslam": med(ours, "fps"), "fps_baseline": med(base, "fps"),
+            "fps_ratio": _ratio(ours.get("fps"), base.get("fps")),
+            "tracked_vslam": med(ours, "tracked_fraction"), "tracked_baseline": med(base, "tracked_fraction"),
+            "baseline_paced": bool(base.get("paced")),
+        })
+    return out
+
+
+def comparison_markdown(comparison: Sequence[dict]) -> str:
+    """The vslam-vs-baseline table of :func:`baseline_comparison` (empty string without baselines)."""
+    if not comparison:
+        return ""
+
+    def num(v: float | None, fmt: str) -> str:
+        return "-" if v is None else fmt.format(v)
+
+    lines = ["| run | sensor | baseline | ATE vslam [m] | ATE baseline [m] | ATE ratio | frames/s vslam | "
+             "frames/s baseline | speed ratio | tracked vslam | tracked baseline |", "|" + "---|" * 11]
+    for c in comparison:
+        fps_b = num(c["fps_baseline"], "{:.1f}") + (" (paced)" if c["baseline_paced"] else "")
+        lines.append("| " + " | ".join([
+            c["run"], c.get("sensor") or "-", c["system"], num(c["ate_vslam"], "{:.4f}"),
+            num(c["ate_baseline"], "{:.4f}"), num(c["ate_ratio"], "{:.2f}"), num(c["fps_vslam"], "{:.1f}"), fps_b,
+            num(c["fps_ratio"], "{:.2f}"),
+            num(None if c["tracked_vslam"] is None else 100 * c["tracked_vslam"], "{:.0f} %"),
+            num(None if c["tracked_baseline"] is None else 100 * c["tracked_baseline"], "{:.0f} %")]) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def results_markdown(rows: Sequence[dict], meta: dict | None = None) -> str:
     """The whole ``results.md``: header, the table, failures, and how the numbers were made."""
     meta = meta or {}
@@ -116,6 +171,15 @@ def results_markdown(rows: Sequence[dict], meta: dict | None = None) -> str:
                  "divided by the sensor's frame rate over the frames used; `tracked` is the share of "
                  "frames with a pose.\n")
     parts.append(markdown_table(summary))
+    comparison = comparison_markdown(baseline_comparison(summary))
+    if comparison:
+        parts.append("\n## vslam vs baseline (same benchmark run)\n")
+        parts.append("Medians over successful repeats. ATE ratio = vslam / baseline (< 1: vslam more "
+                     "accurate); speed ratio = vslam frames/s / baseline frames/s (> 1: vslam faster). "
+                     "A `(paced)` baseline was fed at the sensor rate (times its `pace_rate`, see its "
+                     "stats.json), so its frames/s is capped by that rate and the speed ratio is an upper "
+                     "bound (vslam may be relatively slower than shown).\n")
+        parts.append(comparison)
     failed = [r for r in rows if r.get("error")]
     if failed:
         parts.append("\n## Failed runs\n")
@@ -164,7 +228,11 @@ def write_results(rows: Sequence[dict], output: str | Path, meta: dict | None = 
     meta.setdefault("created", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"))
     meta.setdefault("host", f"{platform.node()} ({platform.machine()}, {_cpu_count()} CPUs)")
     files = {}
-    data = {"rows": list(rows), "summary": summarize(rows), "meta": meta}
+    summary = summarize(rows)
+    data = {"rows": list(rows), "summary": summary, "meta": meta}
+    comparison = baseline_comparison(summary)
+    if comparison:
+        data["baseline_comparison"] = comparison
     files["json"] = output / "results.json"
     files["json"].write_text(json.dumps(data, indent=2, default=_json_default))
     files["md"] = output / "results.md"

@@ -35,6 +35,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--baseline", choices=["orbslam3"], help="also run ORB-SLAM3 (optional GPL pyorbslam3)")
     p.add_argument("--vocabulary", help="DBoW2 text vocabulary (ORBvoc.txt) for --baseline orbslam3 "
                                          "(default: $PYORBSLAM3_VOCAB)")
+    p.add_argument("--baseline-python", metavar="PY",
+                   help="Python interpreter of a separate venv holding pyorbslam3 (the baseline runs there "
+                        "in a subprocess; default: $VSLAM_ORBSLAM3_PYTHON, else this one if it has pyorbslam3)")
+    p.add_argument("--baseline-pace", choices=["mono", "all", "none"], default="mono",
+                   help="feed ORB-SLAM3 frames at the sensor rate for: mono runs (default; unpaced monocular "
+                        "mapping cannot keep up on 2 cores), all runs, or none")
+    p.add_argument("--baseline-pace-rate", type=float, default=1.0, metavar="R",
+                   help="paced ORB-SLAM3 runs get frames at R x the sensor rate (default 1; lower it on a "
+                        "loaded machine, where ORB-SLAM3's monocular mapping falls behind and resets)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--report", metavar="HTML", help="also write the HTML report of the benchmark here")
     p.set_defaults(func=run)
@@ -78,10 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.baseline == "orbslam3":
         from vslam.bench import orbslam3_baseline
 
-        vocabulary = args.vocabulary or os.environ.get("PYORBSLAM3_VOCAB") or None
-        baselines[orbslam3_baseline.NAME] = orbslam3_baseline.make_runner(vocabulary)
-    elif args.vocabulary:
-        raise VslamError("--vocabulary is only used with --baseline orbslam3")
+        vocabulary = args.vocabulary or os.environ.get(orbslam3_baseline.VOCAB_ENV) or None
+        baselines[orbslam3_baseline.NAME] = orbslam3_baseline.make_runner(
+            vocabulary, python=args.baseline_python, pace=args.baseline_pace, pace_rate=args.baseline_pace_rate)
+    elif args.vocabulary or args.baseline_python:
+        raise VslamError("--vocabulary and --baseline-python are only used with --baseline orbslam3")
     n_jobs = spec.n_jobs * (1 + len(baselines))
     how = "" if workers is None else f" ({workers} worker{'' if workers == 1 else 's'})"
     print(f"benchmark {args.spec}: {len(spec.runs)} runs, {n_jobs} jobs, executor {args.executor}{how} "
