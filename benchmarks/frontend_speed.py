@@ -12,8 +12,8 @@ For each it reports wall frames/s, process CPU ms per frame over the frame loop
 twice the CPU time), the mean per-stage ms from ``stats["stage_ms"]``, the ATE
 RMSE and the 1-minute load average at the start (``os.getloadavg``).
 
-Run ``python benchmarks/frontend_speed.py [SHARED_DATA]`` (prints a table and the JSON) or call
-:func:`run_frontend_speed`.
+Run ``python benchmarks/frontend_speed.py [SHARED_DATA] [NAMES...] [--prefetch N] [--max-frames N]
+[--set key=value]`` (prints a table and the JSON) or call :func:`run_frontend_speed`.
 """
 from __future__ import annotations
 
@@ -34,19 +34,27 @@ SEQUENCES: dict[str, dict] = {
 OVERRIDES = ("backend.local_ba=false", "loop.enabled=false")
 
 
-def _timed(frames, clock: dict):
-    """Yield ``frames`` and record process CPU time from the first frame to the end of the loop
-    (image loading and tracking; dataset indexing, ground truth and imports excluded)."""
-    clock["start"] = time.process_time()
-    for f in frames:
-        yield f
-    clock["end"] = time.process_time()
+class _Clock:
+    """Process CPU time (all threads: tracking and background decoding) from the start of the
+    frame loop to the last tracked frame (dataset indexing, ground truth and imports excluded)."""
+
+    def __init__(self) -> None:
+        self.start = time.process_time()
+        self.end = self.start
+
+    def __call__(self, frame, result) -> None:  # run_sequence's on_frame callback
+        self.end = time.process_time()
 
 
 def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
-                       overrides: tuple[str, ...] = OVERRIDES) -> dict:
-    """``{name: {"fps", "cpu_ms_per_frame", "stage_ms", "ate_rmse", "frames", "tracked", "load1",
-    "target_fps"}}`` for the sequences in :data:`SEQUENCES` (all unless ``names``)."""
+                       overrides: tuple[str, ...] = OVERRIDES, prefetch_depth: int = 4,
+                       max_frames: int | None = None) -> dict:
+    """``{name: {"fps", "cpu_ms_per_frame", "read_ms", "stage_ms", "ate_rmse", "frames", "tracked",
+    "load1", "target_fps"}}`` for the sequences in :data:`SEQUENCES` (all unless ``names``).
+
+    ``read_ms`` is the mean time the tracker waited for a decoded frame (with ``prefetch_depth``
+    > 0 decoding runs in a background thread, :func:`vslam.datasets.prefetch.prefetch`);
+    ``max_frames`` overrides the clip length of every sequence."""
     from vslam.config import Config, load_config
     from vslam.datasets import open_dataset
     from vslam.runner import run_sequence
@@ -63,18 +71,21 @@ def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
             continue
         cfg = load_config(Config, None, list(overrides))
         ds = open_dataset(path, sensor=spec["sensor"])
-        stop = len(ds) if spec["max_frames"] is None else min(len(ds), spec["max_frames"])
+        limit = max_frames if max_frames is not None else spec["max_frames"]
+        stop = len(ds) if limit is None else min(len(ds), limit)
         system = System(cfg, ds.camera, sensor=spec["sensor"])
-        clock: dict = {}
+        gt = ds.ground_truth()
         load1 = os.getloadavg()[0]
-        res = run_sequence(system, _timed(ds.frames(0, stop), clock), total=stop, config=cfg,
-                           ground_truth=ds.ground_truth(), align="sim3" if spec["sensor"] == "mono" else "se3",
-                           progress=False)
+        clock = _Clock()
+        res = run_sequence(system, ds.frames(0, stop), total=stop, config=cfg, ground_truth=gt,
+                           align="sim3" if spec["sensor"] == "mono" else "se3", progress=False,
+                           on_frame=clock, prefetch_depth=prefetch_depth)
         s = res.stats
         n = max(1, int(s["frames"]))
         out[name] = {
             "fps": s["fps"],
-            "cpu_ms_per_frame": round(1000.0 * (clock["end"] - clock["start"]) / n, 1),
+            "cpu_ms_per_frame": round(1000.0 * (clock.end - clock.start) / n, 1),
+            "read_ms": s.get("read_ms"),
             "stage_ms": s.get("stage_ms", {}),
             "ate_rmse": s.get("ate_rmse"),
             "frames": s["frames"],
@@ -86,14 +97,21 @@ def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
 
 
 def main(argv: list[str]) -> int:
-    shared = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parents[2] / "shared" / "data"
-    names = argv[2:] or None
-    res = run_frontend_speed(shared, names)
+    import argparse
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("shared", nargs="?", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    p.add_argument("names", nargs="*", help=f"sequences to run (default all): {', '.join(SEQUENCES)}")
+    p.add_argument("--prefetch", type=int, default=4, help="frames decoded ahead (0: decode in the tracking thread)")
+    p.add_argument("--max-frames", type=int, default=None, help="clip length for every sequence")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="extra config override")
+    a = p.parse_args(argv[1:])
+    res = run_frontend_speed(Path(a.shared), a.names or None, OVERRIDES + tuple(a.set), a.prefetch, a.max_frames)
     for name, r in res.items():
         st = " ".join(f"{k}={v:.1f}" for k, v in r["stage_ms"].items() if isinstance(v, (int, float)))
         ate = f"{r['ate_rmse']:.4f}" if r["ate_rmse"] is not None else "-"
         print(f"{name:15s} {r['fps']:6.1f} fps (target {r['target_fps']:.0f})  cpu {r['cpu_ms_per_frame']:6.1f} "
-              f"ms/frame  ATE {ate}  load {r['load1']}  [{st}]")
+              f"ms/frame  read {r['read_ms']} ms  ATE {ate}  load {r['load1']}  [{st}]")
     print(json.dumps(res, indent=1))
     return 0
 

@@ -107,3 +107,78 @@ def test_sparse_map_topology_and_saved_map(synthetic_run):
     # the dense mesh of the room
     mesh = read_ply(out / "mesh.ply")
     assert len(mesh.points) > 5000 and mesh.faces is not None and len(mesh.faces) > 5000
+
+
+def test_background_decoding_and_detection_change_nothing(shared_data):
+    """Decoding and feature detection ahead in the prefetch thread give exactly the poses of the
+    sequential run (detection needs no tracking state), and the tracker did not detect itself."""
+    from vslam.config import Config, load_config
+    from vslam.datasets import open_dataset
+    from vslam.system import System
+
+    ds = open_dataset(shared_data / "7scenes_redkitchen", sensor="rgbd")
+    cfg = load_config(Config, None, ["backend.local_ba=false", "loop.enabled=false"])
+    runs = []
+    for depth in (0, 3):
+        system = System(cfg, ds.camera, sensor="rgbd")
+        runs.append(run_sequence(system, ds.frames(0, 25), progress=False, prefetch_depth=depth))
+    seq, pre = runs
+    assert seq.stats["tracked"] == pre.stats["tracked"] == 25
+    np.testing.assert_array_equal(seq.trajectory.T_world_cam, pre.trajectory.T_world_cam)
+    # sequential: detection is tracking time; prefetched: the frames decoded while the tracker
+    # was busy (most of them: tracking is slower than decoding) were detected on the other thread
+    assert seq.stats["stage_ms"]["prepare"] == 0.0 and seq.stats["stage_ms"]["features"] > 2.0
+    assert pre.stats["stage_ms"]["prepare"] > 0.0
+    assert "read_ms" in pre.stats
+
+
+class _ThreadProbe:
+    """Records OpenCV's thread count and the thread each frame was prepared in."""
+
+    def __init__(self):
+        self.cv_threads, self.prepared_in = [], {}
+
+    def prepare(self, frame):
+        import threading
+
+        self.prepared_in[frame.index] = threading.current_thread().name
+
+    def track(self, frame):
+        import time
+
+        import cv2
+
+        self.cv_threads.append(cv2.getNumThreads())
+        time.sleep(0.03)  # a tracker slower than decoding: the prefetch thread gets ahead
+        return _Result(np.eye(4), "ok")
+
+    def finish(self):
+        pass
+
+    def stats(self):
+        return {}
+
+    def trajectory(self):
+        from vslam.eval.trajectory import Trajectory
+
+        return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+
+    def keyframe_trajectory(self):
+        return self.trajectory()
+
+
+def test_opencv_threads_set_for_the_run_and_restored():
+    import cv2
+
+    before = cv2.getNumThreads()
+    probe = _ThreadProbe()
+    frames = [_Frame(i, 0.1 * i) for i in range(6)]
+    res = run_sequence(probe, frames, progress=False, cv_threads=1, prefetch_depth=2)
+    assert res.stats["frames"] == 6 and probe.cv_threads == [1] * 6
+    assert cv2.getNumThreads() == before
+    # frames decoded while the tracker was busy are prepared ahead (the first ones go straight
+    # to the idle tracker, which then does that work itself)
+    assert len(probe.prepared_in) >= 3 and set(probe.prepared_in.values()) == {"vslam-prefetch"}
+    probe = _ThreadProbe()
+    run_sequence(probe, frames, progress=False, cv_threads=None, prefetch_depth=0)
+    assert probe.cv_threads == [before] * 6 and probe.prepared_in == {}  # no prefetch: prepare is the tracker's job

@@ -6,8 +6,14 @@ Outputs (the contract of ``vslam run``):
   timestamps. Written and flushed frame by frame, so an interrupted or crashed run keeps what it
   had; rewritten at the end with the final (optimized) poses.
 * ``keyframes.txt``: the keyframe trajectory, TUM format.
-* ``stats.json``: counts, timings, loops, and ATE/RPE when ground truth is known.
+* ``stats.json``: counts, timings (``read_ms``: mean wait of the tracker for a decoded frame;
+  ``stage_ms``: the system's per-stage times), loops, and ATE/RPE when ground truth is known.
 * ``config.yaml``: the fully resolved configuration.
+
+Frames are decoded (and, by the system's ``prepare``, converted to gray and their features
+detected) in a background thread a few frames ahead of tracking
+(:func:`vslam.datasets.prefetch.prefetch`), so on a machine with two cores decoding and detection
+overlap tracking.
 """
 from __future__ import annotations
 
@@ -75,6 +81,8 @@ def run_sequence(
     progress: bool = True,
     on_frame: Callable[[Any, Any], None] | None = None,
     extra_stats: dict | None = None,
+    prefetch_depth: int = 4,
+    cv_threads: int | None = 1,
 ) -> RunResult:
     """Feed ``frames`` to ``system.track`` one by one and collect (and optionally write) the results.
 
@@ -88,8 +96,19 @@ def run_sequence(
         ground_truth: when given, ATE/RPE are computed and added to the stats.
         align: ``se3`` or ``sim3`` (monocular) for the ATE.
         on_frame: optional callback ``(frame, track_result)``, e.g. a live viewer.
+        prefetch_depth: frames decoded ahead in a background thread while the current one is
+            tracked (:func:`vslam.datasets.prefetch.prefetch`; bounded, so memory stays flat);
+            that thread also runs the system's ``prepare(frame)`` (or its tracker's: grayscale
+            and feature detection) when it has one, on the frames it decoded while the tracker
+            was busy (so the work balances between the threads). 0 decodes in the tracking thread.
+        cv_threads: size of OpenCV's own thread pool during the run (``cv2.setNumThreads``,
+            restored afterwards); None leaves it alone. 1 by default: the run already keeps two
+            threads busy (tracking and prefetching), and OpenCV's pool competing with them for
+            the cores cost more CPU per frame than it saved (``benchmarks/frontend_speed.py``).
     """
     from tqdm import tqdm
+
+    from vslam.datasets.prefetch import prefetch
 
     out = Path(output_dir) if output_dir is not None else None
     if out is not None:
@@ -106,8 +125,24 @@ def run_sequence(
     error: str | None = None
     bar = tqdm(total=total, desc="tracking", unit="frame", disable=not progress, file=sys.stderr,
                dynamic_ncols=True, leave=False)
+    # per-frame work that needs no tracking state (detection) runs in the decoding thread too
+    prepare = getattr(system, "prepare", None)
+    source = prefetch(frames, prefetch_depth, prepare)
+    cv_threads_before = None
+    if cv_threads is not None:
+        import cv2
+
+        cv_threads_before = cv2.getNumThreads()
+        cv2.setNumThreads(int(cv_threads))
+    t_read = 0.0  # time the tracking thread waited for the next decoded frame
     try:
-        for frame in frames:
+        while True:
+            t0 = time.perf_counter()
+            try:
+                frame = next(source)
+            except StopIteration:
+                break
+            t_read += time.perf_counter() - t0
             result = system.track(frame)
             n_frames += 1
             if result.T_world_cam is not None:
@@ -131,6 +166,11 @@ def run_sequence(
         error = f"{type(exc).__name__}: {exc}"
         raise
     finally:
+        source.close()  # stops the decoding thread (a no-op once the frames are exhausted)
+        if cv_threads_before is not None:
+            import cv2
+
+            cv2.setNumThreads(cv_threads_before)
         bar.close()
         wall = time.perf_counter() - t_start
         if traj_file is not None:
@@ -141,6 +181,7 @@ def run_sequence(
             "lost": n_lost,
             "wall_s": round(wall, 3),
             "fps": round(n_frames / wall, 2) if wall > 0 else 0.0,
+            "read_ms": round(1000.0 * t_read / max(n_frames, 1), 3),  # mean wait for a decoded frame
         }
         try:
             stats.update(system.stats())
@@ -154,6 +195,8 @@ def run_sequence(
         trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         if error is None:
             trajectory = system.trajectory()
+            # frames posed after the fact (seen before a monocular initialization) count as tracked
+            stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
             if out is not None and len(trajectory):
                 _atomic_write_tum(out / "trajectory.txt", trajectory)
             if out is not None:

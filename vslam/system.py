@@ -133,7 +133,8 @@ class System:
         gba = self.local_mapper.global_ba if self.local_mapper is not None else None
         pg = getattr(self._backend_cfg, "pose_graph", None)
         self.loop_closer = LoopCloser(self.map, camera, sensor, loop_cfg, scale_factor=feat.scale_factor,
-                                      lock=self._map_lock, global_ba=gba, pose_graph=pg)
+                                      lock=self._map_lock, global_ba=gba, pose_graph=pg,
+                                      realtime=getattr(self._backend_cfg, "mode", "deterministic") == "realtime")
         self.loop_closer.correction_listeners.append(self._on_loop_correction)
         self.add_keyframe_listener(self.loop_closer.on_keyframe)
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
@@ -150,6 +151,12 @@ class System:
             self.tracker.T_world_last_good = D @ self.tracker.T_world_last_good
 
     # ------------------------------------------------------------------ streaming
+    def prepare(self, frame: Frame) -> None:
+        """Optional, from another thread ahead of :meth:`track`: the work on ``frame`` that needs no
+        tracking state (grayscale, feature detection); see :meth:`Tracker.prepare`. The runner's
+        decoding thread calls it so that detection overlaps tracking on a second core."""
+        self.tracker.prepare(frame)
+
     def track(self, frame: Frame) -> TrackResult:
         """Track one frame; returns its pose (None when lost or initializing)."""
         with self._map_lock:
@@ -274,6 +281,7 @@ class System:
             "frames_initializing": self._n.get("initializing", 0),
             "map_segments": self.tracker.segment + 1,
             "relocalizations": self.tracker.n_relocalized,
+            "depth_bridged": self.tracker.n_depth_bridged,
             "stage_ms": stage_ms,
             "sensor": self.sensor,
             "association": self.frontend_config.association,

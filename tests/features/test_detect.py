@@ -160,3 +160,27 @@ def test_descriptors_equal_opencv_multilevel_orb(astronaut):
     ids = np.array([k.class_id for k in out])
     assert len(ids) == len(feats) and (feats.octave > 0).sum() > 300
     np.testing.assert_array_equal(desc, feats.descriptors[ids])
+
+
+def test_survivors_finds_the_kept_keypoints_in_order():
+    """cv2.ORB.compute may drop keypoints (order-preserving); their input indices are recovered
+    from the positions, duplicates included."""
+    from vslam.features.detect import _keypoints, _survivors
+
+    rng = np.random.default_rng(4)
+    x = rng.integers(0, 100, 50).astype(np.float64)
+    y = rng.integers(0, 80, 50).astype(np.float64)
+    x[7], y[7] = x[6], y[6]  # a duplicated position
+    kps = _keypoints(x, y, rng.uniform(0, 360, 50), 31.0)
+    np.testing.assert_array_equal(_survivors(kps, x, y), np.arange(50))
+    keep = np.sort(rng.choice(50, 30, replace=False))
+    keep = np.union1d(keep, [6, 7])
+    out = [kps[i] for i in keep]
+    np.testing.assert_array_equal(_survivors(out, x, y), keep)
+    # through describe_orb: points near the border are dropped, the rest keep their input order
+    img = cv2.GaussianBlur(rng.integers(0, 256, (120, 160), dtype=np.uint8), (5, 5), 1.0)
+    from vslam.features.detect import describe_orb
+
+    uv = np.array([[5, 5], [60, 50], [80, 60], [155, 100], [100, 70]], np.float32)
+    feats = describe_orb(img, uv)
+    np.testing.assert_array_equal(feats.uv, uv[[1, 2, 4]])

@@ -58,3 +58,35 @@ def test_unmapped_view_is_not_relocalized(mapped):
     frame = seq[75]  # the far side of the room, never mapped
     obs = system.tracker._detect(frame, frame.gray)
     assert system.relocalizer(obs) is None
+
+
+@pytest.fixture(scope="module")
+def one_keyframe():
+    """An RGB-D map of the synthetic loop's first frame only (one keyframe)."""
+    seq = SyntheticSequence(SyntheticConfig(n_frames=150, laps=1.2, seed=0, width=320, height=240,
+                                            fx=262.5, fy=262.5, cx=159.5, cy=119.5))
+    system = System(Config(), seq[0].camera, sensor="rgbd")
+    system.track(seq[0])
+    return seq, system
+
+
+@pytest.mark.parametrize("k", [4, 6])
+def test_recover_against_recent_keyframe_without_prediction(one_keyframe, k):
+    """Wide baseline (10-15 deg, 25-37 cm from the only keyframe): the tracker's fallback finds the
+    pose from descriptors + depth alone, no motion prediction, no place recognition."""
+    seq, system = one_keyframe
+    frame = seq[k]
+    obs = system.tracker._detect(frame, frame.gray)
+    result = system.relocalizer.recover(obs, [0, None, 0])  # duplicates / None are ignored
+    assert result is not None and result.keyframe_id == 0
+    assert result.n_inliers >= system.relocalizer.config.recover_min_inliers
+    dist, ang = _pose_error(result.T_world_cam, np.linalg.inv(seq[0].T_world_cam) @ frame.T_world_cam)
+    assert dist < 0.01 and ang < 0.3, (dist, ang)
+
+
+def test_recover_refuses_an_unrelated_view(one_keyframe):
+    seq, system = one_keyframe
+    frame = seq[75]  # the far side of the room
+    obs = system.tracker._detect(frame, frame.gray)
+    assert system.relocalizer.recover(obs, [0]) is None
+    assert system.relocalizer.recover(obs, []) is None

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import operator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -205,20 +206,39 @@ class _Orientation:
 
 
 def _keypoints(x: np.ndarray, y: np.ndarray, angle: np.ndarray, size: float) -> list:
-    """``cv2.KeyPoint`` list at ``(x, y)`` with ``angle`` (degrees), octave 0 and ``class_id`` = input
-    index (built by ``map``, the fastest way to make many of them from Python)."""
+    """``cv2.KeyPoint`` list at ``(x, y)`` with ``angle`` (degrees), octave 0 (built by ``map`` over
+    the 4-argument constructor, the fastest way to make many of them from Python)."""
     n = len(x)
     return list(map(cv2.KeyPoint, np.asarray(x, np.float64).tolist(), np.asarray(y, np.float64).tolist(),
-                    itertools.repeat(size, n), np.asarray(angle, np.float64).tolist(),
-                    itertools.repeat(0.0, n), itertools.repeat(0, n), range(n)))
+                    itertools.repeat(size, n), np.asarray(angle, np.float64).tolist()))
 
 
-def _survivors(kps_out: list, n_in: int) -> np.ndarray:
-    """Input indices (``class_id``) of the keypoints ``cv2.ORB.compute`` kept. ORB only drops points
-    (border filter, order-preserving), so when none were dropped they are ``arange(n_in)``."""
+def _survivors(kps_out: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Input indices of the keypoints ``cv2.ORB.compute`` kept from those made at ``(x, y)``. ORB
+    only drops points (border filter, order-preserving), so when none were dropped they are
+    ``arange(len(x))``; otherwise one walk along both lists matches the (float32) positions."""
+    n_in = len(x)
     if len(kps_out) == n_in:
         return np.arange(n_in, dtype=np.int64)
-    return np.array([k.class_id for k in kps_out], np.int64)
+    pts = cv2.KeyPoint_convert(kps_out).reshape(-1, 2).tolist()
+    xin = np.asarray(x, np.float32).tolist()
+    yin = np.asarray(y, np.float32).tolist()
+    out = np.empty(len(pts), np.int64)
+    j = 0
+    for i, (u, v) in enumerate(pts):  # rare path (points dropped by OpenCV)
+        while xin[j] != u or yin[j] != v:
+            j += 1
+        out[i] = j
+        j += 1
+    return out
+
+
+def _responses(kps) -> np.ndarray:
+    """``(N,) float32`` ``response`` of a keypoint list."""
+    return np.fromiter(map(_RESPONSE, kps), np.float32, len(kps))
+
+
+_RESPONSE = operator.attrgetter("response")
 
 
 def _features_from_keypoints(kps, desc, binary: bool, scale_factor: float, dim: int,
@@ -268,7 +288,7 @@ class OrbGridDetector:
             z = np.zeros(0, np.int64)
             return z, z.copy(), np.zeros(0, np.float32)
         pts = cv2.KeyPoint_convert(kps)
-        score = np.array([k.response for k in kps], np.float32)
+        score = _responses(kps)
         x = pts[:, 0].astype(np.int64)
         y = pts[:, 1].astype(np.int64)
         h, w = img.shape
@@ -296,7 +316,7 @@ class OrbGridDetector:
             pts = cv2.KeyPoint_convert(kps)
             xs.append(pts[:, 0].astype(np.int64) + X0)
             ys.append(pts[:, 1].astype(np.int64) + Y0)
-            ss.append(np.array([k.response for k in kps], np.float32))
+            ss.append(_responses(kps))
         if not xs:
             z = np.zeros(0, np.int64)
             return z, z.copy(), np.zeros(0, np.float32)
@@ -362,7 +382,7 @@ class OrbGridDetector:
             kps_out, desc = self.orb.compute(levels[lvl], kps)
             if desc is None or not kps_out:
                 continue
-            ids = _survivors(kps_out, len(kps))
+            ids = _survivors(kps_out, x, y)
             hl, wl = levels[lvl].shape
             # pixel-centre-correct level-0 position: x0 = (x + 0.5) * W / W_l - 0.5 (a bias of
             # up to (s - 1) / 2 px otherwise, which does not cancel under rotation or zoom)
@@ -430,7 +450,7 @@ def describe_orb(gray: np.ndarray, uv: np.ndarray, orb=None, orientation: _Orien
     kps_out, desc = orb.compute(gray, kps)
     if desc is None or not kps_out:
         return Features.empty(True, 32, scale_factor)
-    ids = _survivors(kps_out, len(kps))
+    ids = _survivors(kps_out, uv[ok, 0], uv[ok, 1])
     order = np.argsort(ids, kind="stable")
     ids, desc = ids[order], desc[order]
     sel = idx_ok[ids]

@@ -75,6 +75,7 @@ class FrontendConfig:
 
     # --- loss / recovery
     max_lost_frames: int = 3  # after this many consecutive lost frames, re-initialize a new map segment
+    depth_icp_fallback: bool = True  # RGB-D: a frame with no feature pose is aligned by depth ICP to the last tracked one before it counts as lost
 
     def __post_init__(self) -> None:
         if self.association not in ASSOCIATIONS:

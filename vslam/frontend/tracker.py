@@ -121,11 +121,41 @@ class Tracker:
         # set by the System when loop closing is on: Observation -> Relocalization | None
         self.relocalizer: Callable[..., Any] | None = None
         self.n_relocalized = 0
+        self.n_depth_bridged = 0  # lost frames given a pose by depth ICP (RGB-D, see _bridge_with_depth)
+        self._last_depth: tuple[np.ndarray, np.ndarray] | None = None  # (depth image, T_world_cam) of the last tracked frame
+        # prepare() results by frame index: (frame, gray, Features or None); filled ahead of track()
+        self._prepared: dict[int, tuple[Frame, np.ndarray, Any]] = {}
+        self._prepared_feats = None
+        self._prep_detector = None
+        self.timers.setdefault("prepare", 0.0)  # prepare() time (another thread's, when prefetching)
 
     # ================================================================== per frame
+    def prepare(self, frame: Frame) -> None:
+        """Work on ``frame`` that needs no tracking state (grayscale conversion and, with
+        ``association=match``, feature detection), safe to run in another thread ahead of
+        :meth:`track` (the runner's decoding thread calls it, see :func:`vslam.runner.run_sequence`).
+        Uses its own detector instance; :meth:`track` picks the result up by frame identity."""
+        t0 = time.perf_counter()
+        gray = frame.gray
+        feats = None
+        if self.cfg.association == "match":
+            if self._prep_detector is None:
+                from vslam.features.detect import create_detector
+
+                self._prep_detector = create_detector(self.fcfg)
+            feats = self._prep_detector.detect(gray)
+        if len(self._prepared) > 64:  # never consumed (frames dropped by the caller): keep memory flat
+            self._prepared.clear()
+        self._prepared[frame.index] = (frame, gray, feats)
+        self.timers["prepare"] += time.perf_counter() - t0
+
     def track(self, frame: Frame) -> TrackOutput:
         self.n_frames += 1
-        gray = frame.gray
+        prep = self._prepared.pop(frame.index, None)
+        if prep is not None and prep[0] is frame:
+            gray, self._prepared_feats = prep[1], prep[2]
+        else:
+            gray, self._prepared_feats = frame.gray, None
         t0 = time.perf_counter()
         T_world_pred = self.motion_model.predict() if self.state != "initializing" else None
         obs, klt_prev_idx = self._observe(frame, gray, T_world_pred)
@@ -135,6 +165,8 @@ class Tracker:
             out = self._initialize(frame, gray, obs, klt_prev_idx)
         else:
             out = self._track_initialized(frame, gray, obs, klt_prev_idx, T_world_pred)
+        if out.T_world_cam is not None and self.sensor == "rgbd" and frame.depth is not None:
+            self._last_depth = (frame.depth, out.T_world_cam.copy())
         return out
 
     # ------------------------------------------------------------------ features
@@ -181,7 +213,9 @@ class Tracker:
         return obs, klt_prev_idx
 
     def _detect(self, frame: Frame, gray: np.ndarray, mask: np.ndarray | None = None) -> Observation:
-        feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
+        feats, self._prepared_feats = (self._prepared_feats if mask is None else None), None  # from prepare()
+        if feats is None:
+            feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
         if self.cfg.association == "track" and len(feats) > self.cfg.klt_max_tracks:
             feats = feats.subset(np.unique(np.linspace(0, len(feats) - 1, self.cfg.klt_max_tracks).astype(np.int64)))
         n = len(feats)
@@ -413,8 +447,14 @@ class Tracker:
     def _relocalize(self, obs: Observation) -> tuple[np.ndarray | None, int]:
         """Tracking against the local map failed: find the pose among all keyframes of this map
         segment (bag-of-words candidates + PnP, :class:`vslam.loop.relocalization.Relocalizer`),
-        then refine it against that keyframe's local map."""
-        r = self.relocalizer(obs, segment=self.segment)
+        then refine it against that keyframe's local map. First (no place recognition) against the
+        reference and last keyframes, with the lower thresholds of ``Relocalizer.recover``: after a
+        wide-baseline motion the constant-velocity prediction is useless but the map is not."""
+        r = None
+        if hasattr(self.relocalizer, "recover") and self.ref_kf is not None:
+            r = self.relocalizer.recover(obs, [self.ref_kf, self.last_kf])
+        if r is None:
+            r = self.relocalizer(obs, segment=self.segment)
         if r is None:
             return None, 0
         self.ref_kf = r.keyframe_id
@@ -429,7 +469,49 @@ class Tracker:
         log.info("relocalized against keyframe %d with %d inliers", r.keyframe_id, n)
         return T, n
 
+    def _bridge_with_depth(self, frame, gray, obs) -> TrackOutput | None:
+        """RGB-D, no pose from features: align this frame's depth image to the last tracked frame's
+        (projective point-to-plane ICP from the motion prediction, :func:`vslam.frontend.depth_icp.align_depth`).
+        If the depths agree, the frame becomes a keyframe of fresh depth points in the *same* map
+        segment (a later loop closure can still correct the whole map) instead of a lost frame and,
+        after ``max_lost_frames``, a new segment with an extrapolated origin."""
+        if (not self.cfg.depth_icp_fallback or self.sensor != "rgbd" or self._last_depth is None
+                or frame.depth is None or self.motion_model.T_world_last is None):
+            return None
+        from vslam.frontend.depth_icp import align_depth
+
+        t0 = time.perf_counter()
+        depth_prev, T_world_prev = self._last_depth
+        T_prev_cur, agree = None, 0.0
+        # from the motion prediction, then from no motion (a turn the prediction did not foresee)
+        for T_guess in (inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)):
+            T_prev_cur, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.min_depth,
+                                            min(self.cfg.max_depth, 6.0))
+            if T_prev_cur is not None:
+                break
+        self.timers["pose"] += time.perf_counter() - t0
+        if T_prev_cur is None:
+            log.info("frame %d: depth ICP refused (%.2f of the depths agree)", frame.index, agree)
+            return None
+        T_world_cam = T_world_prev @ T_prev_cur
+        n = int(np.isfinite(obs.depth).sum())
+        obs.point_ids[:] = -1
+        t0 = time.perf_counter()
+        self._insert_keyframe(frame, gray, obs, T_world_cam)
+        self.timers["mapping"] += time.perf_counter() - t0
+        self.state = "ok"
+        self.n_lost_run = 0
+        self.motion_model.update(T_world_cam)
+        self.T_world_last_good = T_world_cam.copy()
+        self._set_prev(obs, gray)
+        self.n_depth_bridged += 1
+        log.info("frame %d: no feature pose, bridged by depth ICP (%.2f of the depths agree)", frame.index, agree)
+        return TrackOutput(T_world_cam, "ok", True, n, self.ref_kf)
+
     def _lost(self, frame, gray, obs) -> TrackOutput:
+        bridged = self._bridge_with_depth(frame, gray, obs)
+        if bridged is not None:
+            return bridged
         self.n_lost_run += 1
         self.state = "lost"
         log.info("frame %d lost (%d in a row)", frame.index, self.n_lost_run)

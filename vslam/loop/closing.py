@@ -3,7 +3,8 @@
 After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D):
 
 1. **Detect.** The keyframe's BoW vector (:class:`vslam.loop.vocabulary.Vocabulary`) queries the
-   :class:`KeyframeDatabase` through the :class:`LoopDetector` (its covisible keyframes excluded,
+   :class:`KeyframeDatabase` through the :class:`LoopDetector` (its connected keyframes, sharing
+   at least ``closing.connected_min_weight`` points, excluded,
    temporal consistency over ``detector.min_consistent`` keyframes).
 2. **Verify** (:func:`vslam.loop.verification.verify`): the query keyframe's descriptors are matched
    to the map points of the candidate and its covisible keyframes; RANSAC estimates the query's
@@ -19,18 +20,20 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
    keyframe and the loop keyframe fixed; every map point moves with its reference (first) keyframe
    (:func:`vslam.backend.correct_points`); then an optional global BA.
 
-Modes: deterministic (the only one implemented) -- :meth:`LoopCloser.on_keyframe` queues,
-:meth:`LoopCloser.after_frame` processes inline after the frame (after local mapping), holding the
-map lock: a loop costs 1-10 s on 7-Scenes (essential graph 0.2-4.4 s with 170-3000 edges, global BA
-2-5 s), during which tracking waits. Real time needs: (1) a worker thread fed by ``on_keyframe``
-(detection + verification ~10-100 ms per keyframe may run under the lock); (2) on acceptance,
-snapshot poses/points/edges under the lock, pause local mapping (LocalMapper must expose
-pause/resume), solve the essential graph on the copy without the lock, then take the lock to fuse,
-write the poses and move the points (including keyframes and points created meanwhile: correct
-them with their reference keyframe's correction, as ORB-SLAM does for keyframes inserted
-during the loop correction); (3) global BA in the same thread on a copy, results merged by
-propagating the correction through the spanning tree to newer keyframes; (4) tracking notified
-via ``correction_listeners`` (the System moves the motion model's last pose by the query's correction).
+Modes (``backend.mode``, shared with local mapping):
+
+- ``deterministic``: :meth:`LoopCloser.on_keyframe` queues and :meth:`LoopCloser.after_frame`
+  processes inline after the frame (after local mapping); the same result every run.
+- ``realtime``: a worker thread (lower OS priority) processes the keyframes. Detection and
+  verification (~10-100 ms per keyframe) and the point fusion hold the map lock; the essential
+  graph (0.2-4 s on 7-Scenes) is solved on a snapshot *without* the lock, and the write-back
+  (:meth:`_apply_correction`, under the lock) applies each node's correction to the keyframe's
+  current pose, moving keyframes created during the solve with the newest older node (as ORB-SLAM
+  corrects keyframes inserted during a loop correction). The global BA that follows is also solved
+  without the lock (:meth:`vslam.backend.local_mapping.LocalMapper.global_ba`). Every write-back
+  increments ``Map.loop_epoch``, so a local BA built before it drops its stale result. Tracking is
+  told through ``correction_listeners`` (the System moves the motion model's last pose by the query's
+  correction) and so never waits for a solve.
 
 Example:
     >>> closer = LoopCloser(system.map, camera, "rgbd", LoopConfig())        # doctest: +SKIP
@@ -39,6 +42,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -81,6 +85,24 @@ class LoopRecord:
     ms: float
 
 
+@dataclass
+class _Prepared:
+    """A verified loop whose essential graph is built and waits to be solved."""
+
+    kf: KeyFrame
+    match_id: int
+    ver: Verified
+    score: float
+    nodes: list[int]
+    T_before: np.ndarray
+    edges: list
+    T_init: np.ndarray
+    fixed: list[int]
+    q_group: list[int]
+    c_group: list[int]
+    fused: int
+
+
 def _rot_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
@@ -98,13 +120,18 @@ class LoopCloser:
         lock: the map lock shared with tracking / local mapping.
         global_ba: callable running a full BA over the map (e.g. ``LocalMapper.global_ba``); None: none.
         pose_graph: pose-graph solver settings.
+        realtime: process keyframes in a background thread (see the module docstring); else inline
+            in :meth:`after_frame` (deterministic).
     """
 
     def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: LoopConfig | None = None,
                  vocabulary: Vocabulary | None = None, scale_factor: float = 1.2,
                  lock: threading.RLock | None = None, global_ba: Callable[[], object] | None = None,
-                 pose_graph: PoseGraphConfig | None = None) -> None:
+                 pose_graph: PoseGraphConfig | None = None, realtime: bool = False) -> None:
         self.config = config or LoopConfig()
+        self.realtime = bool(realtime)
+        self._queue: queue.Queue = queue.Queue()
+        self._thread: threading.Thread | None = None
         self.map = map_
         self.camera = camera
         self.sensor = sensor
@@ -125,6 +152,7 @@ class LoopCloser:
         self.bows: dict[int, BowVector] = {}
         self.loops: list[LoopRecord] = []
         self.rejected = 0
+        self.failed = 0
         self.candidates = 0
         self._last_loop_kf = -10**9
         self._times: list[float] = []
@@ -134,8 +162,36 @@ class LoopCloser:
 
     # ------------------------------------------------------------------ feeding
     def on_keyframe(self, kf: KeyFrame) -> None:
-        """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`)."""
-        self._pending.append(kf.id)
+        """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`, or by the worker
+        thread in realtime mode)."""
+        if self.realtime:
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._worker, name="vslam-loop-closing", daemon=True)
+                self._thread.start()
+            self._queue.put(kf.id)
+        else:
+            self._pending.append(kf.id)
+
+    def _worker(self) -> None:
+        """Realtime mode: process keyframes as they come, at a lower OS priority than tracking."""
+        try:
+            import os
+
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+        except (AttributeError, OSError):
+            pass
+        while True:
+            kf_id = self._queue.get()
+            if kf_id is None:
+                return
+            t0 = time.perf_counter()
+            try:
+                self.process(kf_id)
+            except Exception:  # a worker must never die silently
+                self.failed += 1
+                log.exception("loop closing failed on keyframe %d", kf_id)
+            self._t_total += time.perf_counter() - t0
+            self._n_processed += 1
 
     def after_frame(self) -> None:
         """Process the queued keyframes (inline, deterministic)."""
@@ -146,10 +202,25 @@ class LoopCloser:
             self._n_processed += 1
 
     def finish(self) -> None:
+        """Process what is queued (deterministic) or drain and join the worker (realtime)."""
         self.after_frame()
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
 
     def _neighbours(self, kf_id: int) -> list[int]:
         return self.map.covisible(kf_id)
+
+    def _connected(self, kf_id: int) -> list[int]:
+        """Keyframes sharing at least ``closing.connected_min_weight`` points with ``kf_id`` (or its
+        strongest link when none does), strongest first: ORB-SLAM's connected keyframes
+        (``KeyFrame::UpdateConnections``, threshold 15). Weaker links (a few re-observed old points)
+        neither hide a loop candidate from detection nor join the query side of a correction."""
+        links = self.map.covisibility.get(kf_id, {})
+        order = sorted(links, key=lambda k: (-links[k], k))
+        strong = [k for k in order if links[k] >= self.config.closing.connected_min_weight]
+        return strong if strong or not order else order[:1]
 
     # ------------------------------------------------------------------ one keyframe
     def process(self, kf_id: int) -> LoopRecord | None:
@@ -162,7 +233,7 @@ class LoopCloser:
             bow, _ = self.vocabulary.transform(kf.descriptors)
             self.bows[kf_id] = bow
             cc = self.config.closing
-            exclude = set(self.map.covisible(kf_id))
+            exclude = set(self._connected(kf_id))
             if kf_id - self._last_loop_kf < cc.min_keyframes_between or kf.bad:
                 self.database.add(kf_id, bow)
                 return None
@@ -170,7 +241,7 @@ class LoopCloser:
             if cand is None:
                 return None
             self.candidates += 1
-            record = None
+            prepared = None
             # the best match first, then its group (nearest ids first); at most three tries. Keyframes
             # of other map segments are skipped (another coordinate frame: that would be map merging)
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
@@ -181,13 +252,21 @@ class LoopCloser:
                 if ver == "implausible":
                     break  # the group agrees on a correction too large to trust
                 if ver is not None:
-                    record = self._correct(kf, match_id, ver, cand.score)
+                    prepared = self._prepare_correction(kf, match_id, ver, cand.score)
                     break
-            if record is None:
+            if prepared is None:
                 self.rejected += 1
                 return None
             self.detector.reset()
             self._last_loop_kf = kf_id
+        # the essential graph is solved without the map lock (realtime: tracking goes on meanwhile)
+        t_pg = time.perf_counter()
+        result = optimize_pose_graph(prepared.T_init, prepared.edges, fixed=prepared.fixed,
+                                     sim3=self.sensor == "mono", config=self.pose_graph_config)
+        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(prepared.nodes),
+                 len(prepared.edges), result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
+        with self.lock:
+            record = self._apply_correction(prepared, result)
         if self.config.closing.global_ba and self.global_ba is not None:
             t_ba = time.perf_counter()
             self.global_ba()
@@ -229,7 +308,7 @@ class LoopCloser:
         match = self.map.keyframes[match_id]
         if match.segment != kf.segment or match.bad:
             return None
-        q_side = set(self.map.covisible(kf.id)) | {kf.id}
+        q_side = set(self._connected(kf.id)) | {kf.id}
         group = self._group(match_id, q_side)
         pts = self.map.local_point_ids(group)
         # points the query side already observes are not loop evidence
@@ -253,9 +332,10 @@ class LoopCloser:
         return ver
 
     # ------------------------------------------------------------------ correction
-    def _correct(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> LoopRecord:
+    def _prepare_correction(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> "_Prepared":
+        """Under the map lock: fuse the loop's duplicated points and build the essential graph
+        (a snapshot of the keyframe poses; solved by :meth:`process` without the lock)."""
         cc = self.config.closing
-        mono = self.sensor == "mono"
         seg = kf.segment
         nodes = sorted(k.id for k in self.map.keyframes.values() if k.segment == seg)
         index = {k: i for i, k in enumerate(nodes)}
@@ -263,7 +343,7 @@ class LoopCloser:
         # the query side: the query and its covisible keyframes, moved by the loop's correction
         S_q = ver.S_world_cam
         S_corr = S_q @ kf.T_cam_world
-        q_group = [kf.id] + [k for k in self.map.covisible(kf.id) if k in index and k != match_id]
+        q_group = [kf.id] + [k for k in self._connected(kf.id) if k in index and k != match_id]
         c_group = self._group(match_id, set(q_group))
         S_init = {k: S_corr @ self.map.keyframes[k].T_world_cam for k in q_group}
         fused = self._fuse(kf, ver, q_group, c_group, S_init)
@@ -292,28 +372,47 @@ class LoopCloser:
             T_init[index[k]] = S
             T_init[index[k], :3, :3] /= s
         fixed = sorted({index[nodes[0]], index[match_id]})
-        t_pg = time.perf_counter()
-        result = optimize_pose_graph(T_init, edges, fixed=fixed, sim3=mono, config=self.pose_graph_config)
-        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(nodes), len(edges),
-                 result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
-        # ---- write back: poses, then points with their reference keyframe
-        # a Sim(3) node maps its (uncorrected) camera coordinates to the world: for the query side
-        # its scale is the loop's, so points expressed in their uncorrected reference camera are
-        # moved and rescaled by correct_points (ORB-SLAM CorrectLoop)
-        S_after = result.S_world_cam
+        return _Prepared(kf, match_id, ver, score, nodes, T_before, edges, T_init, fixed, q_group, c_group, fused)
+
+    def _apply_correction(self, p: "_Prepared", result) -> LoopRecord:
+        """Under the map lock: write the essential graph's result back.
+
+        Each keyframe ``k`` of the segment moves by its node's correction
+        ``S_k = S_after T_before^-1`` applied to its *current* pose (``S_k T_world_k``), so a local BA
+        that moved it during the solve is kept; keyframes created during the solve take the
+        correction of the newest older node (ORB-SLAM2 corrects keyframes inserted during a loop
+        correction the same way). Points move with their reference (first) keyframe. In
+        deterministic mode nothing changes during the solve and this is the plain write-back.
+        """
+        kf, match_id, ver, score = p.kf, p.match_id, p.ver, p.score
+        nodes, T_before, q_group, c_group, fused = p.nodes, p.T_before, p.q_group, p.c_group, p.fused
+        seg = kf.segment
+        C = result.S_world_cam @ np.linalg.inv(T_before)  # per-node correction (Sim(3) for monocular)
+        now = sorted(k for k, f in self.map.keyframes.items() if f.segment == seg)
+        snap = np.asarray(nodes)
+        node_of = np.searchsorted(snap, now, side="right") - 1  # the node itself, else the newest older one
+        keep = node_of >= 0
+        now = [k for k, ok in zip(now, keep) if ok]
+        node_of = node_of[keep]
+        T_now = np.stack([self.map.keyframes[k].T_world_cam for k in now])
+        S_now = C[node_of] @ T_now
+        scales = np.cbrt(np.linalg.det(S_now[:, :3, :3]))
+        T_after = S_now.copy()
+        T_after[:, :3, :3] /= scales[:, None, None]
         store = self.map.points
         n = len(store)
         ids = np.flatnonzero(store.alive[:n])
         ref = store.first_kf[ids]
-        lut = np.full(max(nodes) + 2, -1, np.int64)
-        lut[nodes] = np.arange(len(nodes))
-        inseg = (ref >= 0) & (ref <= max(nodes))
+        lut = np.full(max(now) + 2, -1, np.int64)
+        lut[now] = np.arange(len(now))
+        inseg = (ref >= 0) & (ref <= max(now))
         ids, ref = ids[inseg], lut[ref[inseg]]
         ids, ref = ids[ref >= 0], ref[ref >= 0]
-        store.position[ids] = correct_points(store.position[ids], ref, T_before, S_after)
+        store.position[ids] = correct_points(store.position[ids], ref, T_now, S_now)
         T_q_before = kf.T_world_cam.copy()
-        for k, T in zip(nodes, result.T_world_cam):
+        for k, T in zip(now, T_after):
             self.map.keyframes[k].T_world_cam = T.copy()
+        self.map.loop_epoch += 1  # local BAs built before this write-back are stale
         for k in set(q_group) | set(c_group):
             self.map.update_covisibility(k)
         for cb in self.correction_listeners:
@@ -389,6 +488,7 @@ class LoopCloser:
     def stats(self) -> dict:
         return {
             "loops": self.loop_list(), "candidates": self.candidates, "rejected": self.rejected,
+            "failed": self.failed, "mode": "realtime" if self.realtime else "deterministic",
             "details": [r.__dict__.copy() for r in self.loops],
             "loop_ms_mean": round(float(np.mean(self._times)), 1) if self._times else 0.0,
             "ms_per_keyframe": round(1e3 * self._t_total / max(self._n_processed, 1), 2),

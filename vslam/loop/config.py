@@ -137,6 +137,10 @@ class ClosingConfig:
             (spanning tree, covisibility) edges: the verified loop pose is far more certain than one
             odometry step (it is measured against the old map directly).
         min_keyframes_between: no loop is detected within this many keyframes after the last one.
+        connected_min_weight: keyframes sharing at least this many points with the query are its
+            "connected" keyframes (ORB-SLAM: 15): excluded from the loop query and moved with it by a
+            correction. Weaker covisibility links (old points re-observed on a revisit) are loop
+            candidates.
         fuse_radius_px: search radius when fusing the candidate's points into the query's neighbours.
         global_ba: run a global bundle adjustment after the pose-graph correction.
     """
@@ -156,6 +160,7 @@ class ClosingConfig:
     covisibility_edge_weight: int = 100
     loop_edge_information: float = 10.0
     min_keyframes_between: int = 10
+    connected_min_weight: int = 15
     fuse_radius_px: float = 4.0
     global_ba: bool = True
 
@@ -181,6 +186,10 @@ class RelocalizationConfig:
         reproj_px: PnP RANSAC inlier threshold.
         search_radius_px: guided matching radius at the PnP pose.
         min_inliers: inliers after refinement needed to accept the pose (ORB-SLAM: 50).
+        recover_min_matches / recover_min_inliers: the tracker's fallback against its recent
+            keyframes (:meth:`Relocalizer.recover`; candidates known, not from place recognition):
+            descriptor matches to try RANSAC, map-point inliers after guided matching to accept.
+        recover_covisible: covisible keyframes of each recent keyframe whose points join that search.
     """
 
     max_candidates: int = 5
@@ -190,6 +199,9 @@ class RelocalizationConfig:
     reproj_px: float = 4.0
     search_radius_px: float = 8.0
     min_inliers: int = 40
+    recover_min_matches: int = 10
+    recover_min_inliers: int = 20
+    recover_covisible: int = 5
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1 or self.min_inliers < 6 or self.min_matches < 6:

@@ -10,6 +10,11 @@ the first candidate with ``min_inliers`` inliers wins.
 For RGB-D / stereo the candidate keyframe's keypoints with depth (not only its map points) take
 part in the 3D-3D RANSAC, which matters on texture-poor scenes where keyframes keep few points.
 
+:meth:`Relocalizer.recover` is the tracker's first fallback (ORB-SLAM's ``TrackReferenceKeyFrame``):
+the same verification against known recent keyframes (no place recognition), with lower thresholds
+(``recover_min_matches`` / ``recover_min_inliers``); on TUM fr3/cabinet (58 wide-baseline keyframes)
+it recovers 20-45-inlier poses where the constant-velocity prediction misleads guided matching.
+
 Hook for the tracker (the System builds ``system.relocalizer``; the tracker would call it when
 ``_pose_against_map`` fails, before counting the frame lost)::
 
@@ -109,31 +114,65 @@ class Relocalizer:
                 break
         return out
 
-    def __call__(self, obs: Any, segment: int | None = None) -> Relocalization | None:
-        """Relocalize a frame given its keypoints ``obs`` (attributes ``uv_undist``, ``descriptors``,
-        ``octave``, ``depth``, optional ``u_right``); keyframes of ``segment`` only if given."""
-        cfg = self.config
+    def _features(self, obs: Any, min_matches: int) -> Features | None:
         desc = getattr(obs, "descriptors", None)
-        if desc is None or len(desc) < cfg.min_matches or desc.dtype != np.uint8:
+        if desc is None or len(desc) < min_matches or desc.dtype != np.uint8:
             return None
-        self.attempts += 1
         depth = np.asarray(obs.depth, float) if getattr(obs, "depth", None) is not None else np.full(len(desc), np.nan)
         X = None
         if self.sensor != "mono":
             ok = np.isfinite(depth) & (depth > 0)
             X = np.full((len(desc), 3), np.nan)
             X[ok] = self.camera.backproject(obs.uv_undist[ok], depth[ok])
-        feat = Features(obs.uv_undist, desc, obs.octave, depth, getattr(obs, "u_right", None), X)
-        for kf_id in self.candidates(desc, segment):
-            group = [kf_id] + self.map.covisible(kf_id, 10)
-            pts = self.map.local_point_ids(group)
-            extra_X, extra_desc = self._keypoints_with_depth(kf_id)
-            ver = verify(feat, self.map.points, pts, self.camera, self.sensor, ratio=cfg.match_ratio,
-                         max_distance=cfg.max_descriptor_distance, min_matches=cfg.min_matches,
-                         search_radius_px=cfg.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                         pnp_reproj_px=cfg.reproj_px, seed=kf_id, extra_X=extra_X, extra_desc=extra_desc)
+        return Features(obs.uv_undist, desc, obs.octave, depth, getattr(obs, "u_right", None), X)
+
+    def _try(self, feat: Features, kf_ids: list[int], n_covisible: int, min_matches: int, seed: int):
+        """Verify ``feat`` against the points of ``kf_ids`` and their ``n_covisible`` strongest
+        covisible keyframes; the RANSAC stage also uses the keypoints with depth of ``kf_ids``."""
+        cfg = self.config
+        group = list(dict.fromkeys(kf_ids + [c for k in kf_ids for c in self.map.covisible(k, n_covisible)]))
+        pts = self.map.local_point_ids(group)
+        extra = [self._keypoints_with_depth(k) for k in kf_ids]
+        extra = [e for e in extra if e[0] is not None and len(e[0])]
+        extra_X = np.concatenate([e[0] for e in extra]) if extra else None
+        extra_desc = np.concatenate([e[1] for e in extra]) if extra else None
+        return verify(feat, self.map.points, pts, self.camera, self.sensor, ratio=cfg.match_ratio,
+                      max_distance=cfg.max_descriptor_distance, min_matches=min_matches,
+                      search_radius_px=cfg.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
+                      pnp_reproj_px=cfg.reproj_px, seed=seed, extra_X=extra_X, extra_desc=extra_desc)
+
+    def __call__(self, obs: Any, segment: int | None = None) -> Relocalization | None:
+        """Relocalize a frame given its keypoints ``obs`` (attributes ``uv_undist``, ``descriptors``,
+        ``octave``, ``depth``, optional ``u_right``); keyframes of ``segment`` only if given."""
+        cfg = self.config
+        feat = self._features(obs, cfg.min_matches)
+        if feat is None:
+            return None
+        self.attempts += 1
+        for kf_id in self.candidates(feat.descriptors, segment):
+            ver = self._try(feat, [kf_id], 10, cfg.min_matches, kf_id)
             if ver is not None and max(ver.n_inliers, ver.n_ransac) >= cfg.min_inliers:
                 self.successes += 1
                 log.info("relocalized against keyframe %d with %d inliers", kf_id, ver.n_inliers)
                 return Relocalization(ver.T_world_cam, kf_id, ver.kp_idx, ver.point_ids, ver.n_inliers)
         return None
+
+    def recover(self, obs: Any, kf_ids: list[int]) -> Relocalization | None:
+        """Tracking fallback without a motion prediction (wide baselines): the frame against the
+        given recent keyframes (the tracker's reference and last keyframes) and their covisible
+        neighbours, with no place recognition. As ORB-SLAM's ``TrackReferenceKeyFrame`` (Mur-Artal
+        et al. 2015, sec. V-B) the candidates are known, so the thresholds are lower than a global
+        relocalization's (``recover_min_matches``, ``recover_min_inliers``): descriptor matches
+        (map points, plus the keyframes' keypoints with depth) -> 3D-3D RANSAC with depth (PnP
+        without) -> guided matching and pose refinement. The keyframe returned is the first id."""
+        cfg = self.config
+        kf_ids = [int(k) for k in dict.fromkeys(kf_ids) if k is not None and k in self.map.keyframes]
+        feat = self._features(obs, cfg.recover_min_matches)
+        if feat is None or not kf_ids:
+            return None
+        ver = self._try(feat, kf_ids, cfg.recover_covisible, cfg.recover_min_matches, kf_ids[0])
+        if ver is None or ver.n_inliers < cfg.recover_min_inliers:
+            log.debug("recovery against keyframes %s failed: %s inliers", kf_ids, None if ver is None else ver.n_inliers)
+            return None
+        log.info("recovered against keyframes %s with %d inliers", kf_ids, ver.n_inliers)
+        return Relocalization(ver.T_world_cam, kf_ids[0], ver.kp_idx, ver.point_ids, ver.n_inliers)

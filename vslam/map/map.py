@@ -23,6 +23,9 @@ class Map:
         self.points = MapPointStore()
         self.covisibility: dict[int, dict[int, int]] = {}
         self._next_kf_id = 0
+        # incremented by loop closing each time it moves the map (pose graph, fusion): an optimization
+        # whose problem was snapshot before (realtime mode) must drop its now stale result
+        self.loop_epoch = 0
 
     # ------------------------------------------------------------------ keyframes
     def next_keyframe_id(self) -> int:

@@ -1,0 +1,42 @@
+"""Wide-baseline RGB-D tracking on real data: TUM fr3/cabinet, 58 keyframes ~0.67 s apart
+(12-20 cm and 3-17 deg between frames, a texture-poor cabinet). The constant-velocity prediction
+is useless there; the tracker must fall back to matching without prediction (recent keyframes,
+then place recognition) and, with no feature pose at all, to depth ICP, instead of losing track
+and starting new map segments (before these fallbacks: 44/58 frames in 8 segments, ATE 0.61 m)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vslam.api import load_config
+from vslam.config import Config
+from vslam.eval.evaluate import evaluate_trajectories
+from vslam.system import System
+
+
+@pytest.fixture(scope="module")
+def cabinet_run(shared_data):
+    from vslam.datasets import open_dataset
+
+    ds = open_dataset(shared_data / "tum_fr3_cabinet_keyframes58", sensor="rgbd")
+    system = System(load_config(Config), ds.camera, sensor="rgbd")
+    results = [system.track(f) for f in ds]
+    system.finish()
+    return ds, system, results
+
+
+def test_every_cabinet_frame_is_tracked_in_one_map(cabinet_run):
+    ds, system, results = cabinet_run
+    stats = system.stats()
+    assert len(results) == 58
+    assert all(r.T_world_cam is not None for r in results)
+    assert stats["frames_lost"] == 0 and stats["map_segments"] == 1
+    assert stats["relocalizations"] + system.tracker.n_depth_bridged >= 3  # the fallbacks did the work
+
+
+def test_cabinet_ate(cabinet_run):
+    ds, system, _ = cabinet_run
+    res = evaluate_trajectories(system.trajectory(), ds.ground_truth(), max_diff=0.02)
+    assert res.matched_poses == 58
+    assert res.ate.rmse < 0.25, res.ate.rmse  # measured 0.166 m (no loop closed yet)
+    assert np.isfinite(res.ate_errors).all()
