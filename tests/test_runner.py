@@ -77,6 +77,8 @@ def test_run_writes_every_output_and_tracks_accurately(synthetic_run):
         assert key in stats
     assert stats["frames"] == 40 and stats["tracked"] == 40 and stats["lost"] == 0
     assert stats["ate_rmse"] < 0.02
+    # resident memory sampled at the start and every 100 frames (40 frames: the start only)
+    assert stats["rss_mb"][0][0] == 0 and stats["rss_mb"][0][1] > 50 and len(stats["rss_mb"]) == 1
     assert (out / "config.yaml").is_file()
     traj = read_tum(out / "trajectory.txt")
     assert len(traj) == 40

@@ -70,6 +70,16 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serializable: {type(obj)}")
 
 
+def _rss_mb() -> float | None:
+    """Resident memory of this process in MB (Linux ``/proc/self/statm``; None elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+        return round(pages * os.sysconf("SC_PAGE_SIZE") / 2**20, 1)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
 def run_sequence(
     system: Any,
     frames: Iterable[Any],
@@ -135,6 +145,7 @@ def run_sequence(
         cv_threads_before = cv2.getNumThreads()
         cv2.setNumThreads(int(cv_threads))
     t_read = 0.0  # time the tracking thread waited for the next decoded frame
+    rss: list[list] = [[0, _rss_mb()]]  # resident memory every 100 frames (flat apart from the map)
     try:
         while True:
             t0 = time.perf_counter()
@@ -158,6 +169,8 @@ def run_sequence(
             bar.update(1)
             if n_frames % 10 == 0:
                 bar.set_postfix(tracked=n_tracked, lost=n_lost, refresh=False)
+            if n_frames % 100 == 0:
+                rss.append([n_frames, _rss_mb()])
         system.finish()
     except KeyboardInterrupt:
         error = "interrupted"
@@ -182,6 +195,7 @@ def run_sequence(
             "wall_s": round(wall, 3),
             "fps": round(n_frames / wall, 2) if wall > 0 else 0.0,
             "read_ms": round(1000.0 * t_read / max(n_frames, 1), 3),  # mean wait for a decoded frame
+            "rss_mb": rss,  # [[frames done, resident MB], ...]
         }
         try:
             stats.update(system.stats())
