@@ -5,12 +5,18 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
 1. **Detect.** The keyframe's BoW vector (:class:`vslam.loop.vocabulary.Vocabulary`) queries the
    :class:`KeyframeDatabase` through the :class:`LoopDetector` (its connected keyframes, sharing
    at least ``closing.connected_min_weight`` points, excluded,
-   temporal consistency over ``detector.min_consistent`` keyframes).
+   temporal consistency over ``detector.min_consistent`` keyframes). RGB-D: a single
+   detection (the query's best candidate group, not yet consistent) is also verified, and accepted
+   only when the query's connected keyframes confirm it (step 2; ORB-SLAM3's rule, for sequences
+   of few wide-baseline keyframes where no later keyframe comes back to the place).
 2. **Verify** (:func:`vslam.loop.verification.verify`): the query keyframe's descriptors are matched
-   to the map points of the candidate and its covisible keyframes; RANSAC estimates the query's
+   to the map points of the candidate and its covisible keyframes and (RGB-D / stereo) to those
+   keyframes' keypoints with depth, keyframe by keyframe; RANSAC estimates the query's
    pose in the candidate's world, SE(3) from depth (RGB-D, stereo) or Sim(3) from the query's own
    map points (monocular, where scale drifts); guided matching by projection and robust pose
-   refinement give the final inliers, at least ``closing.min_inliers`` to accept.
+   refinement give the final inliers, at least ``closing.min_inliers`` to accept; or (RGB-D) at
+   least ``closing.confirm_min_inliers`` RANSAC inliers and a connected keyframe of the query,
+   verified against the same candidates, agreeing on the correction (:meth:`LoopCloser._confirmed`).
 3. **Correct.** The matched duplicate points are fused (the candidate side's point survives, the
    query keyframes' observations are remapped), and the candidate's points are projected into the
    query's covisible keyframes and fused too (ORB-SLAM's SearchAndFuse). The essential graph
@@ -238,6 +244,10 @@ class LoopCloser:
                 self.database.add(kf_id, bow)
                 return None
             cand = self.detector.detect(kf_id, bow, covisible_ids=exclude)
+            single = False
+            if cand is None and cc.confirm_min_keyframes > 0 and self.sensor == "rgbd":
+                cand = self.detector.last_best  # single detection: needs covisible confirmation (_verify)
+                single = cand is not None
             if cand is None:
                 return None
             self.candidates += 1
@@ -246,9 +256,9 @@ class LoopCloser:
             # of other map segments are skipped (another coordinate frame: that would be map merging)
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
             order = sorted((i for i in cand.group if i not in exclude and i in same),
-                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[:3]
+                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[: 1 if single else 3]
             for match_id in order:
-                ver = self._verify(kf, match_id)
+                ver = self._verify(kf, match_id, single)
                 if ver == "implausible":
                     break  # the group agrees on a correction too large to trust
                 if ver is not None:
@@ -303,25 +313,71 @@ class LoopCloser:
         group = [match_id] + [k for k in self.map.covisible(match_id, cc.candidate_neighbours) if k not in exclude]
         return [k for k in group if k in self.map.keyframes]
 
-    def _verify(self, kf: KeyFrame, match_id: int) -> Verified | str | None:
-        cc = self.config.closing
-        match = self.map.keyframes[match_id]
-        if match.segment != kf.segment or match.bad:
+    def _keypoints_with_depth(self, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """World points, descriptors and source keyframe of the keypoints with depth but no map point
+        of ``kf_ids`` (RGB-D / stereo; None for monocular). On texture-poor scenes most keypoints
+        keep no map point (local mapping culls points few keyframes re-observe: on TUM fr3/cabinet
+        keyframe 0 keeps none of its 216), so without these a revisit has nothing to match."""
+        if self.sensor == "mono":
             return None
+        Xs, Ds, Ss = [], [], []
+        for k in kf_ids:
+            f = self.map.keyframes[k]
+            if f.descriptors is None or f.depth is None:
+                continue
+            pid = f.point_ids
+            has_point = pid >= 0
+            has_point[has_point] = self.map.points.alive[pid[has_point]]
+            ok = np.isfinite(f.depth) & (f.depth > 0) & ~has_point
+            if not ok.any():
+                continue
+            Xc = self.camera.backproject(f.uv_undist[ok], f.depth[ok])
+            Xs.append(Xc @ f.T_world_cam[:3, :3].T + f.T_world_cam[:3, 3])
+            Ds.append(f.descriptors[ok])
+            Ss.append(np.full(int(ok.sum()), k, np.int64))
+        if not Xs:
+            return None
+        return np.concatenate(Xs), np.concatenate(Ds), np.concatenate(Ss)
+
+    def _verify_group(self, kf: KeyFrame, match_id: int) -> Verified | None:
+        """:func:`verify` of ``kf`` against the candidate ``match_id`` and its covisible keyframes: their
+        map points (minus those the query side observes) and, RGB-D / stereo, their keypoints with depth."""
+        cc = self.config.closing
         q_side = set(self._connected(kf.id)) | {kf.id}
         group = self._group(match_id, q_side)
         pts = self.map.local_point_ids(group)
         # points the query side already observes are not loop evidence
         pts = pts[~np.isin(pts, self.map.local_point_ids([k for k in q_side if k in self.map.keyframes]))]
-        ver = verify(self.features_of(kf), self.map.points, pts, self.camera, self.sensor,
-                     ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
-                     align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
-                     search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                     seed=kf.id)
+        extra = self._keypoints_with_depth(group[: 1 + cc.depth_keypoint_neighbours]) \
+            if cc.match_keypoints_with_depth else None
+        ex = {} if extra is None else {"extra_X": extra[0], "extra_desc": extra[1], "extra_src": extra[2]}
+        return verify(self.features_of(kf), self.map.points, pts, self.camera, self.sensor,
+                      ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
+                      align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
+                      search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
+                      seed=kf.id, **ex)
+
+    def _verify(self, kf: KeyFrame, match_id: int, single: bool = False) -> Verified | str | None:
+        """Verify the candidate; accepted with ``min_inliers`` map-point inliers, or when
+        :meth:`_confirmed`. A ``single`` detection (one temporal consistency has not confirmed yet) is
+        accepted only through :meth:`_confirmed`, and only when it has fewer than ``min_inliers``
+        map-point inliers: a loop with that many is in a well-mapped place, where the following
+        keyframes will find it again and temporal consistency (ORB-SLAM2's rule) decides as before.
+        Returns ``"implausible"`` for a correction beyond the ``max_correction`` bounds."""
+        cc = self.config.closing
+        match = self.map.keyframes[match_id]
+        if match.segment != kf.segment or match.bad:
+            return None
+        ver = self._verify_group(kf, match_id)
         need = cc.min_inliers_mono if self.sensor == "mono" else cc.min_inliers
-        if ver is None or ver.n_inliers < need:
+        strong = ver is not None and ver.n_inliers >= need
+        if single and strong:
+            log.debug("single loop candidate %d -> %d (%d inliers) left to temporal consistency", kf.id, match_id,
+                      ver.n_inliers)
+            return None
+        if ver is None or not (strong or self._confirmed(kf, match_id, ver)):
             log.debug("loop candidate %d -> %d rejected: %s inliers", kf.id, match_id,
-                      None if ver is None else ver.n_inliers)
+                      None if ver is None else (ver.n_ransac, ver.n_inliers))
             return None
         dT = ver.T_world_cam @ kf.T_cam_world
         deg, dist = _rot_deg(dT[:3, :3]), float(np.linalg.norm(ver.T_world_cam[:3, 3] - kf.T_world_cam[:3, 3]))
@@ -330,6 +386,45 @@ class LoopCloser:
                      kf.id, match_id, dist, deg)
             return "implausible"
         return ver
+
+    def _confirmed(self, kf: KeyFrame, match_id: int, ver: Verified) -> bool:
+        """Weak-but-real loops of sparse keyframe sequences (RGB-D): accept a verification below
+        ``min_inliers`` when it has at least ``confirm_min_inliers`` inliers (RANSAC, with the
+        keypoints with depth, or after refinement) and at least ``confirm_min_keyframes`` of the
+        query's connected keyframes, verified independently against the same candidate group, agree on
+        the query's corrected pose within ``confirm_max_m`` / ``confirm_max_deg``. After ORB-SLAM3's
+        ``DetectCommonRegionsFromBoW`` (Campos et al., T-RO 2021, sec. VI-A): a candidate is confirmed
+        by the query's covisible keyframes instead of waiting for later keyframes, which a sequence
+        of few, wide-baseline keyframes may never provide. Connected keyframes have nearly the same
+        drift, so their corrections agree on a true loop; a false match (repeated structure, chance)
+        gives unrelated corrections. Not for stereo: the 3D-3D RANSAC threshold grows with depth
+        squared (RGB-D noise), so on far outdoor points (KITTI, median depth ~15 m) it is metres wide
+        and RANSAC counts 100+ "inliers" for wrong poses; only the agreement test rejected those."""
+        cc = self.config.closing
+        if cc.confirm_min_keyframes <= 0 or self.sensor != "rgbd":
+            return False
+        if max(ver.n_inliers, ver.n_ransac) < cc.confirm_min_inliers:
+            return False
+        T_cam_world_q = inv_T(ver.T_world_cam)  # the query's corrected pose
+        agree = 0
+        for k in self._connected(kf.id)[: cc.confirm_neighbours]:
+            other = self.map.keyframes.get(k)
+            if other is None or other.bad or other.descriptors is None or k == match_id:
+                continue
+            v = self._verify_group(other, match_id)
+            if v is None or max(v.n_inliers, v.n_ransac) < cc.confirm_min_inliers:
+                continue
+            # the query moved by the neighbour's correction vs by its own
+            D = T_cam_world_q @ v.T_world_cam @ other.T_cam_world @ kf.T_world_cam
+            if np.linalg.norm(D[:3, 3]) <= cc.confirm_max_m and _rot_deg(D[:3, :3]) <= cc.confirm_max_deg:
+                agree += 1
+            log.debug("loop %d -> %d: keyframe %d corrects %.3f m / %.2f deg apart (%d/%d inliers)", kf.id,
+                      match_id, k, np.linalg.norm(D[:3, 3]), _rot_deg(D[:3, :3]), v.n_ransac, v.n_inliers)
+            if agree >= cc.confirm_min_keyframes:
+                log.info("loop candidate %d -> %d (%d/%d inliers) confirmed by %d connected keyframe(s)", kf.id,
+                         match_id, ver.n_ransac, ver.n_inliers, agree)
+                return True
+        return False
 
     # ------------------------------------------------------------------ correction
     def _prepare_correction(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> "_Prepared":

@@ -143,6 +143,17 @@ class ClosingConfig:
             candidates.
         fuse_radius_px: search radius when fusing the candidate's points into the query's neighbours.
         global_ba: run a global bundle adjustment after the pose-graph correction.
+        match_keypoints_with_depth: RGB-D / stereo: the candidate group's keypoints with depth but no
+            (alive) map point join the verification's RANSAC, matched keyframe by keyframe: those of
+            the candidate and its ``depth_keypoint_neighbours`` strongest covisible keyframes (each
+            keyframe costs one brute-force matching).
+        confirm_min_keyframes / confirm_min_inliers / confirm_max_m / confirm_max_deg: RGB-D
+            loops below ``min_inliers`` (and single detections that temporal consistency has not
+            confirmed) are accepted when they have ``confirm_min_inliers`` inliers and this many of the
+            query's connected keyframes, verified against the same candidate group with as many
+            inliers, agree on the correction within these bounds (ORB-SLAM3's covisibility check;
+            :meth:`vslam.loop.closing.LoopCloser._confirmed`). 0 keyframes turns the rule off.
+        confirm_neighbours: the query's strongest connected keyframes tried for that confirmation.
     """
 
     candidate_neighbours: int = 10
@@ -163,13 +174,24 @@ class ClosingConfig:
     connected_min_weight: int = 15
     fuse_radius_px: float = 4.0
     global_ba: bool = True
+    match_keypoints_with_depth: bool = True
+    depth_keypoint_neighbours: int = 10
+    confirm_min_keyframes: int = 1
+    confirm_min_inliers: int = 15
+    confirm_max_m: float = 0.2
+    confirm_max_deg: float = 4.0
+    confirm_neighbours: int = 3
 
     def __post_init__(self) -> None:
         if self.min_inliers < 6 or self.min_inliers_mono < 6:
             raise ConfigError(f"loop closing min_inliers={self.min_inliers}/{self.min_inliers_mono}: must be >= 6")
         if not 0.0 < self.match_ratio <= 1.0:
             raise ConfigError(f"loop closing match_ratio={self.match_ratio}: must be in (0, 1]")
-        for name in ("align_threshold_m", "align_threshold_rel", "search_radius_px", "fuse_radius_px"):
+        if self.confirm_min_keyframes < 0 or self.confirm_neighbours < 0 or self.depth_keypoint_neighbours < 0:
+            raise ConfigError("loop closing confirm_min_keyframes, confirm_neighbours and depth_keypoint_neighbours "
+                              "must be >= 0")
+        for name in ("align_threshold_m", "align_threshold_rel", "search_radius_px", "fuse_radius_px",
+                     "confirm_max_m", "confirm_max_deg"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"loop closing {name}={getattr(self, name)}: must be > 0")
 

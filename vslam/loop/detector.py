@@ -55,6 +55,10 @@ class LoopDetector:
         config: thresholds.
         neighbours: ``kf_id -> ids`` of a keyframe's covisible keyframes (from the map); by default
             keyframes whose ids are within ``config.group_radius`` (ids in temporal order).
+
+    Attributes:
+        last_best: the best-scoring group of the last query whatever its consistency (None when no
+            group passed); the loop closer may verify it as a single detection (ORB-SLAM3-style).
     """
 
     def __init__(self, database: KeyframeDatabase, config: LoopDetectorConfig = LoopDetectorConfig(),
@@ -63,6 +67,7 @@ class LoopDetector:
         self.config = config
         self._neighbours = neighbours
         self._groups: list[tuple[frozenset[int], int]] = []
+        self.last_best: LoopCandidate | None = None
 
     def reset(self) -> None:
         """Forget the consistency groups (e.g. after a loop was closed or rejected)."""
@@ -95,6 +100,7 @@ class LoopDetector:
         exclude.add(kf_id)
         candidates = self.database.query(bow, cfg.max_candidates, exclude, min_score=cfg.min_score)
         accepted: LoopCandidate | None = None
+        self.last_best = None  # the best group of this query whatever its consistency (see LoopCloser)
         current: list[tuple[frozenset[int], int]] = []
         if candidates:
             scores = dict(candidates)
@@ -114,6 +120,8 @@ class LoopDetector:
                     if group & previous:
                         consistency = max(consistency, count + 1)
                 current.append((group, consistency))
+                if self.last_best is None or scores[best] > self.last_best.score:
+                    self.last_best = LoopCandidate(kf_id, best, scores[best], group, consistency)
                 if consistency >= cfg.min_consistent and (accepted is None or scores[best] > accepted.score):
                     accepted = LoopCandidate(kf_id, best, scores[best], group, consistency)
         self._groups = current

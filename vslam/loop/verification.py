@@ -108,7 +108,8 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
            *, ratio: float = 0.8, max_distance: float = 64.0, min_matches: int = 20, align_threshold_m: float = 0.05,
            align_threshold_rel: float = 0.03, search_radius_px: float = 8.0, scale_factor: float = 1.2,
            bf: float = 0.0, pnp_reproj_px: float = 4.0, seed: int = 0,
-           extra_X: np.ndarray | None = None, extra_desc: np.ndarray | None = None) -> Verified | None:
+           extra_X: np.ndarray | None = None, extra_desc: np.ndarray | None = None,
+           extra_src: np.ndarray | None = None) -> Verified | None:
     """Estimate the pose of ``feat`` against map points ``group_pts`` (ids into ``store``).
 
     1. descriptor matching (ratio + mutual) of the keypoints to the points;
@@ -120,7 +121,11 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
     ``extra_X (M, 3)`` / ``extra_desc (M, D)``: more candidates for the RANSAC stage that are not map
     points (e.g. keypoints of the candidate keyframes with measured depth, in world coordinates):
     with few map points (texture-poor scenes, wide baselines) they give RANSAC its support; the
-    refinement then uses map points only.
+    refinement then uses map points only. ``extra_src (M,)``: the keyframe each extra point comes
+    from; the extras are then matched keyframe by keyframe (the ratio test within one keyframe, so the
+    same scene point seen by several candidate keyframes is not rejected as ambiguous) and every
+    pair enters the RANSAC (a query keypoint may match one point per keyframe: the candidate
+    keyframes' poses are independent estimates, so their agreement is evidence).
 
     Returns None when any stage has too little support; the caller applies its own inlier threshold.
     """
@@ -132,9 +137,28 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
         cand_ids = np.concatenate([group_pts, np.full(len(extra_X), -1, np.int64)])
         if feat.descriptors is None or len(feat.descriptors) < 2 or len(cand_desc) < 2:
             return None
-        i1, i2, _ = match_descriptors(feat.descriptors, cand_desc, binary=True, ratio=ratio, mutual=True,
-                                      max_distance=max_distance)
-        kp, X_world, pids = np.asarray(i1, np.int64), cand_X[i2], cand_ids[i2]
+        if extra_src is None:
+            i1, i2, _ = match_descriptors(feat.descriptors, cand_desc, binary=True, ratio=ratio, mutual=True,
+                                          max_distance=max_distance)
+            i1, i2 = np.asarray(i1, np.int64), np.asarray(i2, np.int64)
+        else:
+            n_map = len(group_pts)
+            parts1, parts2 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+            if n_map >= 2:
+                j1, j2, _ = match_descriptors(feat.descriptors, cand_desc[:n_map], binary=True, ratio=ratio,
+                                              mutual=True, max_distance=max_distance)
+                parts1.append(np.asarray(j1, np.int64))
+                parts2.append(np.asarray(j2, np.int64))
+            for src in np.unique(extra_src):
+                sel = np.flatnonzero(extra_src == src)
+                if len(sel) < 2:
+                    continue
+                j1, j2, _ = match_descriptors(feat.descriptors, extra_desc[sel], binary=True, ratio=ratio,
+                                              mutual=True, max_distance=max_distance)
+                parts1.append(np.asarray(j1, np.int64))
+                parts2.append(n_map + sel[np.asarray(j2, np.int64)])
+            i1, i2 = np.concatenate(parts1), np.concatenate(parts2)
+        kp, X_world, pids = i1, cand_X[i2], cand_ids[i2]
     else:
         kp, pids = descriptor_candidates(feat, store, group_pts, ratio, max_distance)
         X_world = store.position[pids]
