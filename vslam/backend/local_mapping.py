@@ -36,7 +36,6 @@ Example:
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bund
 from vslam.backend.config import BackendConfig
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
+from vslam.keyframe_queue import KeyframeQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 
@@ -89,9 +89,8 @@ class LocalMapper:
         self.sensor = sensor
         self.scale_factor = float(scale_factor)
         self.lock = lock if lock is not None else threading.RLock()
-        self._pending: list[int] = []
-        self._queue: queue.Queue = queue.Queue()
-        self._thread: threading.Thread | None = None
+        self._queue = KeyframeQueue(self.process, self.config.mode == "realtime", "vslam-local-mapping",
+                                    newest_only=True)
         self._stop = False
         self._times: list[float] = []
         self._solve_times: list[float] = []
@@ -108,54 +107,15 @@ class LocalMapper:
         """Keyframe listener: queue ``kf`` for local mapping."""
         if not self.config.local_ba:
             return
-        if self.config.mode == "realtime":
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._worker, name="vslam-local-mapping", daemon=True)
-                self._thread.start()
-            self._queue.put(kf.id)
-        else:
-            self._pending.append(kf.id)
+        self._queue.put(kf.id)
 
     def after_frame(self) -> None:
         """Deterministic mode: process the keyframes queued while tracking this frame (inline)."""
-        while self._pending:
-            self.process(self._pending.pop(0))
-
-    def _worker(self) -> None:
-        try:  # Linux: let the tracking thread win the CPU when the cores are busy
-            import os
-
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            pass
-        while True:
-            kf_id = self._queue.get()
-            if kf_id is None:
-                return
-            # keyframes that piled up during the last BA: optimize the newest (its window holds them)
-            while True:
-                try:
-                    nxt = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                if nxt is None:
-                    self._queue.put(None)
-                    break
-                self.counts["local_ba_skipped"] += 1
-                kf_id = nxt
-            try:
-                self.process(kf_id)
-            except Exception:  # a worker must never die silently
-                self.counts["failed"] += 1
-                LOG.exception("local mapping failed on keyframe %d", kf_id)
+        self._queue.run_pending()
 
     def finish(self) -> None:
         """Flush: process everything queued (deterministic) or join the worker (realtime)."""
-        self.after_frame()
-        if self._thread is not None:
-            self._queue.put(None)
-            self._thread.join()
-            self._thread = None
+        self._queue.finish()
 
     # ------------------------------------------------------------------ one local BA
     def process(self, kf_id: int) -> BAResult | None:
@@ -678,6 +638,8 @@ class LocalMapper:
     def stats(self) -> dict:
         t = np.asarray(self._times)
         out: dict = dict(self.counts)
+        out["local_ba_skipped"] += self._queue.skipped  # realtime: keyframes that piled up
+        out["failed"] += self._queue.failed
         out["mode"] = "realtime" if self.config.mode == "realtime" else "deterministic"
         out["local_ba_ms_mean"] = round(1e3 * float(t.mean()), 2) if len(t) else 0.0
         out["local_ba_ms_median"] = round(1e3 * float(np.median(t)), 2) if len(t) else 0.0

@@ -48,7 +48,6 @@ Example:
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -61,6 +60,7 @@ from vslam.backend.pose_graph import correct_points, optimize_pose_graph
 from vslam.frontend.local_map import guided_match, project_local_points
 from vslam.frontend.pose import inv_T
 from vslam.geometry.camera import PinholeCamera
+from vslam.keyframe_queue import KeyframeQueue
 from vslam.loop.config import LoopConfig
 from vslam.loop.database import KeyframeDatabase
 from vslam.loop.detector import LoopDetector
@@ -136,8 +136,7 @@ class LoopCloser:
                  pose_graph: PoseGraphConfig | None = None, realtime: bool = False) -> None:
         self.config = config or LoopConfig()
         self.realtime = bool(realtime)
-        self._queue: queue.Queue = queue.Queue()
-        self._thread: threading.Thread | None = None
+        self._queue = KeyframeQueue(self._process_timed, self.realtime, "vslam-loop-closing")
         self.map = map_
         self.camera = camera
         self.sensor = sensor
@@ -154,11 +153,9 @@ class LoopCloser:
             self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
         else:
             self.bf = 0.0
-        self._pending: list[int] = []
         self.bows: dict[int, BowVector] = {}
         self.loops: list[LoopRecord] = []
         self.rejected = 0
-        self.failed = 0
         self.candidates = 0
         self._last_loop_kf = -10**9
         self._times: list[float] = []
@@ -170,50 +167,21 @@ class LoopCloser:
     def on_keyframe(self, kf: KeyFrame) -> None:
         """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`, or by the worker
         thread in realtime mode)."""
-        if self.realtime:
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._worker, name="vslam-loop-closing", daemon=True)
-                self._thread.start()
-            self._queue.put(kf.id)
-        else:
-            self._pending.append(kf.id)
+        self._queue.put(kf.id)
 
-    def _worker(self) -> None:
-        """Realtime mode: process keyframes as they come, at a lower OS priority than tracking."""
-        try:
-            import os
-
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            pass
-        while True:
-            kf_id = self._queue.get()
-            if kf_id is None:
-                return
-            t0 = time.perf_counter()
-            try:
-                self.process(kf_id)
-            except Exception:  # a worker must never die silently
-                self.failed += 1
-                log.exception("loop closing failed on keyframe %d", kf_id)
-            self._t_total += time.perf_counter() - t0
-            self._n_processed += 1
+    def _process_timed(self, kf_id: int) -> None:
+        t0 = time.perf_counter()
+        self.process(kf_id)
+        self._t_total += time.perf_counter() - t0
+        self._n_processed += 1
 
     def after_frame(self) -> None:
         """Process the queued keyframes (inline, deterministic)."""
-        while self._pending:
-            t0 = time.perf_counter()
-            self.process(self._pending.pop(0))
-            self._t_total += time.perf_counter() - t0
-            self._n_processed += 1
+        self._queue.run_pending()
 
     def finish(self) -> None:
         """Process what is queued (deterministic) or drain and join the worker (realtime)."""
-        self.after_frame()
-        if self._thread is not None:
-            self._queue.put(None)
-            self._thread.join()
-            self._thread = None
+        self._queue.finish()
 
     def _neighbours(self, kf_id: int) -> list[int]:
         return self.map.covisible(kf_id)
@@ -583,7 +551,7 @@ class LoopCloser:
     def stats(self) -> dict:
         return {
             "loops": self.loop_list(), "candidates": self.candidates, "rejected": self.rejected,
-            "failed": self.failed, "mode": "realtime" if self.realtime else "deterministic",
+            "failed": self._queue.failed, "mode": "realtime" if self.realtime else "deterministic",
             "details": [r.__dict__.copy() for r in self.loops],
             "loop_ms_mean": round(float(np.mean(self._times)), 1) if self._times else 0.0,
             "ms_per_keyframe": round(1e3 * self._t_total / max(self._n_processed, 1), 2),
