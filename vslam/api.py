@@ -8,7 +8,9 @@ Example::
 
 Streaming use, frame by frame::
 
-    from vslam.api import open_dataset, System, Config
+    from vslam.config import Config
+    from vslam.datasets import open_dataset
+    from vslam.system import System
     ds = open_dataset("path/to/sequence", sensor="rgbd")
     system = System(Config(), ds.camera, sensor="rgbd")
     for frame in ds:
@@ -39,6 +41,38 @@ def choose_sensor(available: tuple[str, ...] | list[str], requested: str | None)
     raise DatasetError("this sequence provides no usable sensor")
 
 
+def resolve_config(config: str | Path | object | None, overrides) -> object:
+    """The root :class:`Config` from a YAML path (or None: defaults) plus ``overrides``, or a given
+    Config object, with ``overrides`` applied on top when there are any."""
+    from vslam.config import Config
+
+    if config is None or isinstance(config, (str, Path)):
+        return load_config(Config, config, overrides)
+    return load_config(Config, None, overrides) if overrides else config
+
+
+def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, start_frame: int,
+                  max_frames: int | None, preferred_sensor: str | None = None):
+    """Open the sequence at ``path`` for ``sensor`` (default: ``preferred_sensor`` when the data has
+    it, else :func:`choose_sensor`'s) and check the frame range.
+
+    Returns ``(dataset, sensor, stop)``: frames ``start_frame .. stop - 1`` are to be used.
+    Raises :class:`DatasetError` when ``start_frame`` is outside the sequence.
+    """
+    from vslam.datasets import open_dataset
+
+    probe = open_dataset(path, kind=dataset)
+    if sensor is None and preferred_sensor in probe.sensors:
+        sensor = preferred_sensor
+    sensor = choose_sensor(probe.sensors, sensor)
+    ds = open_dataset(path, kind=dataset, sensor=sensor)
+    n = len(ds)
+    if start_frame < 0 or start_frame >= n:
+        raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
+    stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
+    return ds, sensor, stop
+
+
 def run_path(
     path: str | Path,
     output: str | Path | None,
@@ -58,22 +92,11 @@ def run_path(
     stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
-    from vslam.config import Config
-    from vslam.datasets import open_dataset
     from vslam.runner import run_sequence
     from vslam.system import System
 
-    if config is None or isinstance(config, (str, Path)):
-        cfg = load_config(Config, config, overrides)
-    else:
-        cfg = load_config(Config, None, overrides) if overrides else config
-    probe = open_dataset(path, kind=dataset)
-    sensor = choose_sensor(probe.sensors, sensor)
-    ds = open_dataset(path, kind=dataset, sensor=sensor)
-    n = len(ds)
-    if start_frame < 0 or start_frame >= n:
-        raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
-    stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
+    cfg = resolve_config(config, overrides)
+    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames)
     system = System(cfg, ds.camera, sensor=sensor)
     gt = ds.ground_truth()
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)

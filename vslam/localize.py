@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam.errors import DatasetError, MapFormatError
+from vslam.errors import MapFormatError
 
 log = logging.getLogger(__name__)
 
@@ -62,9 +62,8 @@ def localize_path(
     """
     from tqdm import tqdm
 
-    from vslam.api import choose_sensor
-    from vslam.config import Config, load_config
-    from vslam.datasets import open_dataset
+    from vslam.api import open_sequence, resolve_config
+    from vslam.config import load_config
     from vslam.eval.trajectory import Trajectory, format_tum_line, tum_rows_from_poses
     from vslam.frontend.localizer import Localizer, LocalizerConfig
     from vslam.map.io import load_map
@@ -74,10 +73,7 @@ def localize_path(
     map_dir = Path(map_dir)
     if config is None and (map_dir / "config.yaml").is_file():
         config = map_dir / "config.yaml"  # detect features as the mapping run did
-    if config is None or isinstance(config, (str, Path)):
-        cfg = load_config(Config, config, root_over)
-    else:
-        cfg = load_config(Config, None, root_over) if root_over else config
+    cfg = resolve_config(config, root_over)
     loc_cfg = load_config(LocalizerConfig, None, loc_over)
 
     if not map_dir.exists():
@@ -86,15 +82,8 @@ def localize_path(
     if not slam_map.keyframes:
         raise MapFormatError(f"{map_dir}: the map has no keyframes; nothing to localize against")
 
-    probe = open_dataset(path, kind=dataset)
-    if sensor is None and metadata.get("sensor") in probe.sensors:
-        sensor = metadata["sensor"]
-    sensor = choose_sensor(probe.sensors, sensor)
-    ds = open_dataset(path, kind=dataset, sensor=sensor)
-    n = len(ds)
-    if start_frame < 0 or start_frame >= n:
-        raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
-    stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
+    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames,
+                                     preferred_sensor=metadata.get("sensor"))
     camera = ds.camera
     if map_camera is not None and (abs(map_camera.fx - camera.fx) > 1e-3 * camera.fx
                                    or map_camera.width != camera.width or map_camera.height != camera.height):

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from vslam.errors import ConfigError
+from vslam.geometry.camera import RGBD_VIRTUAL_BASELINE
 
 _SOLVERS = ("schur", "gtsam")
 
@@ -44,7 +45,7 @@ class LocalBAConfig:
     huber_stereo: float = math.sqrt(7.815)
     chi2_mono: float = 5.991
     chi2_stereo: float = 7.815
-    rgbd_virtual_baseline: float = 0.08
+    rgbd_virtual_baseline: float = RGBD_VIRTUAL_BASELINE  # the tracker's and loop closer's
     solver: str = "schur"
     lambda_initial: float = 1e-4
     relative_tolerance: float = 1e-4

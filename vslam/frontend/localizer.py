@@ -31,12 +31,11 @@ from vslam.features import create_detector
 from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
 from vslam.frontend.pose import inv_T, pnp_ransac, refine_pose
-from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
 
 log = logging.getLogger(__name__)
 
-RGBD_VIRTUAL_BASELINE = 0.08  # metres; the virtual right camera of RGB-D (as the tracker / loop closer)
 
 
 @dataclass(frozen=True)
@@ -154,12 +153,7 @@ class Localizer:
         self.sensor = sensor
         self.detector = create_detector(cfg.features)
         self.scale_factor = float(getattr(cfg.features, "scale_factor", 1.2))
-        if sensor == "stereo":
-            self.bf = camera.fx * float(camera.baseline or 0.0)
-        elif sensor == "rgbd":
-            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
-        else:
-            self.bf = 0.0
+        self.bf = stereo_bf(camera, sensor)
         vocab = vocabulary if vocabulary is not None else load_default_vocabulary()
         reloc_cfg = cfg.loop.relocalization
         if self.cfg.reloc_min_inliers is not None:

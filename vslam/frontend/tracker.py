@@ -37,13 +37,12 @@ from vslam.frontend.pose import (
     align_ransac, essential_pose, inv_T, make_T, parallax_deg, pnp_ransac, refine_pose, reprojection_error,
     triangulate,
 )
-from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 
 log = logging.getLogger(__name__)
 
-RGBD_VIRTUAL_BASELINE = 0.08  # metres; ORB-SLAM2's TUM settings use bf = 40 for fx ~ 517
 
 BINARY_DETECTORS = ("orb", "gftt_orb", "brisk", "akaze")
 
@@ -90,12 +89,7 @@ class Tracker:
         self.scale_factor = feature_cfg.scale_factor
         self.max_level_scale = feature_cfg.scale_factor ** (feature_cfg.n_levels - 1)
         self.K = camera.K
-        if sensor == "stereo":
-            self.bf = camera.fx * float(camera.baseline)
-        elif sensor == "rgbd":
-            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
-        else:
-            self.bf = 0.0
+        self.bf = stereo_bf(camera, sensor)
         self.motion_model = MotionModel()
         self.initializer = MonoInitializer(cfg, self.K)
         self.state = "initializing"

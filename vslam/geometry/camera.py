@@ -112,3 +112,17 @@ class PinholeCamera:
             "width": self.width, "height": self.height,
             "dist": list(map(float, self.dist)), "baseline": self.baseline,
         }
+
+
+RGBD_VIRTUAL_BASELINE = 0.08  # metres; ORB-SLAM2's TUM settings use bf = 40 for fx ~ 517
+
+
+def stereo_bf(camera: PinholeCamera, sensor: str) -> float:
+    """``bf = fx * baseline`` of the stereo residual ``u_right = u - bf / z`` (ORB-SLAM2): the real
+    baseline for rectified stereo, the virtual :data:`RGBD_VIRTUAL_BASELINE` for RGB-D (depth becomes
+    a virtual right-image coordinate), 0 for monocular (no third coordinate)."""
+    if sensor == "stereo":
+        return camera.fx * float(camera.baseline or 0.0)
+    if sensor == "rgbd":
+        return camera.fx * RGBD_VIRTUAL_BASELINE
+    return 0.0

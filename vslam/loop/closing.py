@@ -59,7 +59,7 @@ from vslam.backend.config import PoseGraphConfig
 from vslam.backend.pose_graph import correct_points, optimize_pose_graph
 from vslam.frontend.local_map import guided_match, project_local_points
 from vslam.frontend.pose import inv_T
-from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.keyframe_queue import KeyframeQueue
 from vslam.loop.config import LoopConfig
 from vslam.loop.database import KeyframeDatabase
@@ -71,7 +71,6 @@ from vslam.map.map import Map
 
 log = logging.getLogger(__name__)
 
-RGBD_VIRTUAL_BASELINE = 0.08  # metres, as the tracker's (ORB-SLAM2's bf = 40 for fx ~ 517)
 
 
 @dataclass
@@ -147,12 +146,7 @@ class LoopCloser:
         self.vocabulary = vocabulary or load_default_vocabulary()
         self.database = KeyframeDatabase(self.vocabulary.n_words, self.config.database)
         self.detector = LoopDetector(self.database, self.config.detector, neighbours=self._neighbours)
-        if sensor == "stereo":
-            self.bf = camera.fx * float(camera.baseline or 0.0)
-        elif sensor == "rgbd":
-            self.bf = camera.fx * RGBD_VIRTUAL_BASELINE
-        else:
-            self.bf = 0.0
+        self.bf = stereo_bf(camera, sensor)
         self.bows: dict[int, BowVector] = {}
         self.loops: list[LoopRecord] = []
         self.rejected = 0
