@@ -48,15 +48,18 @@ class _Clock:
 
 def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
                        overrides: tuple[str, ...] = OVERRIDES, prefetch_depth: int = 4,
-                       max_frames: int | None = None) -> dict:
+                       max_frames: int | None = None, prefetch_mode: str = "auto") -> dict:
     """``{name: {"fps", "cpu_ms_per_frame", "read_ms", "stage_ms", "ate_rmse", "frames", "tracked",
     "load1", "target_fps"}}`` for the sequences in :data:`SEQUENCES` (all unless ``names``).
 
     ``read_ms`` is the mean time the tracker waited for a decoded frame (with ``prefetch_depth``
     > 0 decoding runs in a background thread, :func:`vslam.datasets.prefetch.prefetch`);
-    ``max_frames`` overrides the clip length of every sequence."""
+    ``max_frames`` overrides the clip length of every sequence. ``prefetch_mode`` is
+    :func:`vslam.runner.run_sequence`'s (``auto``: a child process reads and detects on long
+    clips; then ``cpu_ms_per_frame`` is this process's CPU only, the child's is not in it)."""
     from vslam.config import Config, load_config
     from vslam.datasets import open_dataset
+    from vslam.datasets.prefetch import FrameRange, choose_prefetch
     from vslam.runner import run_sequence
     from vslam.system import System
 
@@ -77,9 +80,11 @@ def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
         gt = ds.ground_truth()
         load1 = os.getloadavg()[0]
         clock = _Clock()
-        res = run_sequence(system, ds.frames(0, stop), total=stop, config=cfg, ground_truth=gt,
+        frames = FrameRange(ds, 0, stop)
+        mode = "none" if prefetch_depth <= 0 else choose_prefetch(prefetch_mode, frames, stop)
+        res = run_sequence(system, frames, total=stop, config=cfg, ground_truth=gt,
                            align="sim3" if spec["sensor"] == "mono" else "se3", progress=False,
-                           on_frame=clock, prefetch_depth=prefetch_depth)
+                           on_frame=clock, prefetch_depth=prefetch_depth, prefetch_mode=mode)
         s = res.stats
         n = max(1, int(s["frames"]))
         out[name] = {
@@ -92,6 +97,7 @@ def run_frontend_speed(shared_data: Path, names: list[str] | None = None,
             "tracked": s["tracked"],
             "load1": round(load1, 2),
             "target_fps": spec["target_fps"],
+            "prefetch": mode,
         }
     return out
 
@@ -103,15 +109,17 @@ def main(argv: list[str]) -> int:
     p.add_argument("shared", nargs="?", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
     p.add_argument("names", nargs="*", help=f"sequences to run (default all): {', '.join(SEQUENCES)}")
     p.add_argument("--prefetch", type=int, default=4, help="frames decoded ahead (0: decode in the tracking thread)")
+    p.add_argument("--mode", default="auto", help="prefetch mode: auto, thread, process, none")
     p.add_argument("--max-frames", type=int, default=None, help="clip length for every sequence")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="extra config override")
     a = p.parse_args(argv[1:])
-    res = run_frontend_speed(Path(a.shared), a.names or None, OVERRIDES + tuple(a.set), a.prefetch, a.max_frames)
+    res = run_frontend_speed(Path(a.shared), a.names or None, OVERRIDES + tuple(a.set), a.prefetch, a.max_frames,
+                             a.mode)
     for name, r in res.items():
         st = " ".join(f"{k}={v:.1f}" for k, v in r["stage_ms"].items() if isinstance(v, (int, float)))
         ate = f"{r['ate_rmse']:.4f}" if r["ate_rmse"] is not None else "-"
         print(f"{name:15s} {r['fps']:6.1f} fps (target {r['target_fps']:.0f})  cpu {r['cpu_ms_per_frame']:6.1f} "
-              f"ms/frame  read {r['read_ms']} ms  ATE {ate}  load {r['load1']}  [{st}]")
+              f"ms/frame  read {r['read_ms']} ms  {r['prefetch']}  ATE {ate}  load {r['load1']}  [{st}]")
     print(json.dumps(res, indent=1))
     return 0
 

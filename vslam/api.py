@@ -85,13 +85,20 @@ def run_path(
     progress: bool = False,
     viz: str | None = None,
     dense: bool = False,
+    prefetch: str = "thread",
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
     ``dense`` also fuses the keyframes into a TSDF mesh (``mesh.ply``, ``dense.ply``; RGB-D or
     stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
+    ``prefetch`` (``auto``, ``thread``, ``process``, ``none``) is where frames are decoded and
+    features detected ahead of tracking (see :func:`vslam.runner.run_sequence`); ``auto`` uses a
+    child process on long runs when that is safe (a script calling this should guard its work
+    with ``if __name__ == "__main__":``, as any program using multiprocessing must). The poses do
+    not depend on it.
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
+    from vslam.datasets.prefetch import FrameRange
     from vslam.runner import run_sequence
     from vslam.system import System
 
@@ -110,7 +117,7 @@ def run_path(
         raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
     try:
         result = run_sequence(
-            system, ds.frames(start_frame, stop), total=stop - start_frame, output_dir=output, config=cfg,
+            system, FrameRange(ds, start_frame, stop), total=stop - start_frame, prefetch_mode=prefetch, output_dir=output, config=cfg,
             ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
                          "start_frame": start_frame},

@@ -24,7 +24,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -93,6 +93,7 @@ def run_sequence(
     extra_stats: dict | None = None,
     prefetch_depth: int = 4,
     cv_threads: int | None = 1,
+    prefetch_mode: str = "thread",
 ) -> RunResult:
     """Feed ``frames`` to ``system.track`` one by one and collect (and optionally write) the results.
 
@@ -111,6 +112,11 @@ def run_sequence(
             that thread also runs the system's ``prepare(frame)`` (or its tracker's: grayscale
             and feature detection) when it has one, on the frames it decoded while the tracker
             was busy (so the work balances between the threads). 0 decodes in the tracking thread.
+        prefetch_mode: ``thread`` (above), ``process`` (``frames`` must be a
+            :class:`~vslam.datasets.prefetch.FrameRange`: reading and ``prepare`` then run in a
+            child process, :func:`~vslam.datasets.prefetch.prefetch_process`, free of the GIL;
+            the poses are the same), ``auto`` (:func:`~vslam.datasets.prefetch.choose_prefetch`)
+            or ``none`` (everything in the tracking thread).
         cv_threads: size of OpenCV's own thread pool during the run (``cv2.setNumThreads``,
             restored afterwards); None leaves it alone. 1 by default: the run already keeps two
             threads busy (tracking and prefetching), and OpenCV's pool competing with them for
@@ -118,7 +124,7 @@ def run_sequence(
     """
     from tqdm import tqdm
 
-    from vslam.datasets.prefetch import prefetch
+    from vslam.datasets.prefetch import choose_prefetch, prefetch, prefetch_process
 
     out = Path(output_dir) if output_dir is not None else None
     if out is not None:
@@ -136,8 +142,13 @@ def run_sequence(
     bar = tqdm(total=total, desc="tracking", unit="frame", disable=not progress, file=sys.stderr,
                dynamic_ncols=True, leave=False)
     # per-frame work that needs no tracking state (detection) runs in the decoding thread too
-    prepare = getattr(system, "prepare", None)
-    source = prefetch(frames, prefetch_depth, prepare)
+    mode = "none" if prefetch_depth <= 0 else choose_prefetch(prefetch_mode, frames, total)
+    if mode == "process":
+        source = _adopting(system, prefetch_process(frames, getattr(system, "frame_preparer", lambda: None)(),
+                                                    prefetch_depth))
+    else:
+        source = prefetch(frames, prefetch_depth if mode == "thread" else 0, getattr(system, "prepare", None))
+    log.debug("prefetching frames: %s", mode)
     cv_threads_before = None
     if cv_threads is not None:
         import cv2
@@ -227,6 +238,18 @@ def run_sequence(
         if out is not None:
             _write_json(out / "stats.json", stats)
     return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
+
+
+def _adopting(system: Any, items: Iterator[tuple[Any, Any, float]]) -> Iterator[Any]:
+    """Frames from :func:`~vslam.datasets.prefetch.prefetch_process`, each handing its prepared
+    result to ``system.adopt_prepared`` before the tracker gets it."""
+    try:
+        for frame, result, seconds in items:
+            if result is not None:
+                system.adopt_prepared(frame, result, seconds)
+            yield frame
+    finally:
+        items.close()
 
 
 def _evaluate(traj: Trajectory, gt: Trajectory, align: str) -> dict:

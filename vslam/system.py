@@ -77,11 +77,15 @@ class System:
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
         self._init_backend(getattr(config, "backend", None), camera, sensor, feat)
+        if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense_links)
+            self.local_mapper.dense_links = self.tracker.dense_links
         self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
         # per tracked frame: (timestamp, reference keyframe id or -1, T_ref_cam or T_world_cam)
         self._timestamps: list[float] = []
         self._ref: list[int] = []
         self._T_rel: list[np.ndarray] = []
+        self._T_ref_rec: list[np.ndarray] = []  # the reference keyframe's pose when the frame was recorded
+        self._kf_inserted: dict[int, np.ndarray] = {}  # each keyframe's pose at insertion (frame_poses)
         self._n = {"frames": 0, "ok": 0, "lost": 0, "initializing": 0}
         self._t_total = 0.0
         self._finished = False
@@ -92,6 +96,7 @@ class System:
         self._kf_listeners.append(callback)
 
     def _on_keyframe(self, kf: KeyFrame) -> None:
+        self._kf_inserted[kf.id] = kf.T_world_cam.copy()
         for cb in self._kf_listeners:
             cb(kf)
 
@@ -157,6 +162,17 @@ class System:
         decoding thread calls it so that detection overlaps tracking on a second core."""
         self.tracker.prepare(frame)
 
+    def frame_preparer(self):
+        """A picklable callable doing :meth:`prepare`'s work, for a prefetch *process*
+        (:func:`vslam.datasets.prefetch.prefetch_process`): ``preparer(frame) -> result``; hand
+        ``result`` back with :meth:`adopt_prepared` before :meth:`track` gets that frame."""
+        return self.tracker.preparer()
+
+    def adopt_prepared(self, frame: Frame, result, seconds: float = 0.0) -> None:
+        """Take a :meth:`frame_preparer` result computed in another process for ``frame``."""
+        gray, feats = result
+        self.tracker.adopt_prepared(frame, gray, feats, seconds)
+
     def track(self, frame: Frame) -> TrackResult:
         """Track one frame; returns its pose (None when lost or initializing)."""
         with self._map_lock:
@@ -218,9 +234,11 @@ class System:
         if kf is not None:
             self._ref.append(kf.id)
             self._T_rel.append(inv_T(kf.T_world_cam) @ T_world_cam)
+            self._T_ref_rec.append(kf.T_world_cam.copy())
         else:
             self._ref.append(-1)
             self._T_rel.append(T_world_cam.copy())
+            self._T_ref_rec.append(np.eye(4))
         self._timestamps.append(timestamp)
 
     def finish(self) -> None:
@@ -239,13 +257,17 @@ class System:
     # ------------------------------------------------------------------ results
     def trajectory(self) -> Trajectory:
         """Every tracked frame, with its pose re-expressed through its reference keyframe's
-        current (possibly optimized) pose: ``T_world_cam = T_world_kf @ T_kf_cam``."""
+        current (possibly optimized) pose: ``T_world_cam = T_world_kf @ T_kf_cam``, or with the
+        corrections of the keyframes before and after it blended (``backend.frame_correction``,
+        :func:`vslam.backend.frame_poses.frame_poses`)."""
+        from vslam.backend.frame_poses import frame_poses
+
         if not self._timestamps:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-        T = np.empty((len(self._timestamps), 4, 4))
-        for i, (r, Tr) in enumerate(zip(self._ref, self._T_rel)):
-            kf = self.map.keyframes.get(r) if r >= 0 else None
-            T[i] = kf.T_world_cam @ Tr if kf is not None else Tr
+        T_ref_rec = np.stack(self._T_ref_rec)
+        mode = getattr(self._backend_cfg, "frame_correction", "reference")
+        T = frame_poses(np.asarray(self._timestamps), np.asarray(self._ref), T_ref_rec @ np.stack(self._T_rel),
+                        T_ref_rec, self.map.keyframes, self._kf_inserted, interpolate=mode == "interpolate")
         ts = np.asarray(self._timestamps)
         order = np.argsort(ts, kind="stable")
         ts, T = ts[order], T[order]
@@ -282,6 +304,7 @@ class System:
             "map_segments": self.tracker.segment + 1,
             "relocalizations": self.tracker.n_relocalized,
             "depth_bridged": self.tracker.n_depth_bridged,
+            "depth_refined": self.tracker.n_depth_refined,
             "stage_ms": stage_ms,
             "sensor": self.sensor,
             "association": self.frontend_config.association,

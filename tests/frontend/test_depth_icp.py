@@ -70,3 +70,17 @@ def test_photometric_variant_on_the_same_step(room):
     assert T is not None and agree > 0.95
     dist, ang = _error(T, T_true)
     assert dist < 0.005 and ang < 0.1, (dist, ang)
+
+
+def test_downsampled_alignment_keeps_the_full_resolution_accuracy(room):
+    """``downsample=2`` (the tracker's dense refinement): half-resolution images, K halved, the
+    agreement still measured on the full images."""
+    a, b = room[0], room[2]
+    T_true = _inv(a.T_world_cam) @ b.T_world_cam
+    T, agree = align_depth(a.depth, b.depth, a.camera.K, np.eye(4), gray_prev=a.gray, gray_cur=b.gray, downsample=2)
+    assert T is not None and agree > 0.95
+    dist, ang = _error(T, T_true)
+    assert dist < 0.005 and ang < 0.1, (dist, ang)
+    # and the same result as at full resolution (an unscaled K would put it centimetres off)
+    T_full, _ = align_depth(a.depth, b.depth, a.camera.K, np.eye(4), gray_prev=a.gray, gray_cur=b.gray)
+    assert _error(T, T_full)[0] < 0.005

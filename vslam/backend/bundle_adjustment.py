@@ -5,6 +5,9 @@ Cost (ORB-SLAM2, Mur-Artal & Tardos 2017, Sec. V-VI): the sum over observations 
 ``Omega = I / sigma^2`` (``sigma = scale_factor ** octave``). Monocular observations measure
 ``(u, v)``; rectified stereo adds ``u_right = u - fx b / z``; RGB-D depth ``d`` becomes a virtual
 ``u_right = u - fx b_v / d`` with a virtual baseline ``b_v`` so it uses the same stereo residual.
+The third residual is either ``u_right`` itself (ORB-SLAM2; independent errors on ``(u, v, u_right)``)
+or the disparity ``u - u_right`` (independent errors on ``(u, v, disparity)``; ``rgbd_residual`` /
+``stereo_residual``, see :class:`~vslam.backend.config.LocalBAConfig`).
 Like ORB-SLAM, a first robust pass (``iterations_robust``) is followed by removing the observations
 with ``chi2`` above 5.991 (mono, 2 dof) / 7.815 (stereo, 3 dof) and a refinement pass without the
 kernel (``iterations_refine``); the returned inlier mask is the chi-square test at the final estimate.
@@ -59,9 +62,10 @@ def _observations(problem: BAProblem, config: LocalBAConfig) -> schur_lm.Observa
     baseline[has_d] = config.rgbd_virtual_baseline
     stereo = has_r | has_d
     meas = np.column_stack([problem.obs_uv, np.where(stereo, u_right, 0.0)])
+    disparity = (has_d & (config.rgbd_residual == "disparity")) | (has_r & (config.stereo_residual == "disparity"))
     return schur_lm.Observations(
         cam=problem.kf_index(problem.obs_kf), pt=problem.pt_index(problem.obs_pt), meas=meas,
-        baseline=baseline, stereo=stereo, info=1.0 / problem.obs_sigma**2,
+        baseline=baseline, stereo=stereo, info=1.0 / problem.obs_sigma**2, disparity=disparity,
     )
 
 
@@ -116,12 +120,17 @@ def _solve_gtsam(problem: BAProblem, obs: schur_lm.Observations, cam_var: np.nda
     graph = gtsam.NonlinearFactorGraph()
     cal = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
     cal_stereo = {}
-    models: dict[tuple[float, bool], object] = {}
+    models: dict[tuple[float, bool, bool], object] = {}
 
-    def model(sigma: float, stereo: bool):
-        key = (sigma, stereo)
+    def model(sigma: float, stereo: bool, disparity: bool = False):
+        key = (sigma, stereo, disparity)
         if key not in models:
-            base = gtsam.noiseModel.Isotropic.Sigma(3 if stereo else 2, sigma)
+            if disparity:
+                # independent (u, v, disparity) errors seen on (u_left, u_right, v) = (u, u - d, v)
+                cov = sigma**2 * np.array([[1.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]])
+                base = gtsam.noiseModel.Gaussian.Covariance(cov)
+            else:
+                base = gtsam.noiseModel.Isotropic.Sigma(3 if stereo else 2, sigma)
             if huber is not None:
                 k = config.huber_stereo if stereo else config.huber_mono
                 base = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
@@ -132,15 +141,15 @@ def _solve_gtsam(problem: BAProblem, obs: schur_lm.Observations, cam_var: np.nda
     lkeys = [L(j) for j in range(problem.num_points)]
     idx = np.flatnonzero(active)
     sig = problem.obs_sigma
-    for o, c, p, u, v, ur, b, s, st in zip(
+    for o, c, p, u, v, ur, b, s, st, dp in zip(
         idx.tolist(), obs.cam[idx].tolist(), obs.pt[idx].tolist(), obs.meas[idx, 0].tolist(),
         obs.meas[idx, 1].tolist(), obs.meas[idx, 2].tolist(), obs.baseline[idx].tolist(),
-        sig[idx].tolist(), obs.stereo[idx].tolist(),
+        sig[idx].tolist(), obs.stereo[idx].tolist(), obs.disparity[idx].tolist(),
     ):
         if st:
             if b not in cal_stereo:
                 cal_stereo[b] = gtsam.Cal3_S2Stereo(cam.fx, cam.fy, 0.0, cam.cx, cam.cy, b)
-            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), model(s, True), xkeys[c], lkeys[p], cal_stereo[b]))
+            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u, ur, v), model(s, True, dp), xkeys[c], lkeys[p], cal_stereo[b]))
         else:
             graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), model(s, False), xkeys[c], lkeys[p], cal))
     T0 = _join_poses(R_cw, t_cw)

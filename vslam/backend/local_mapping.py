@@ -14,6 +14,8 @@ Sec. VI-B):
    poses held constant; the first keyframe of the segment is always constant. Monocular problems
    hold at least two keyframes constant so the scale is fixed too, and leave out the points fewer
    than ``mono_min_observations`` keyframes see (two-view points: their depth drifts outwards in BA).
+   Stereo / RGB-D problems leave out points with no depth or disparity whose rays span less than
+   ``depthless_min_parallax_deg`` (their depth is unobservable).
 3. **Solve** with :func:`vslam.backend.local_bundle_adjustment` (robust pass, chi-square outlier
    removal, refinement) and write poses (``kf.T_world_cam``) and points back into the map.
 4. **Cull.** Observations failing the chi-square test are removed (``kf.point_ids[i] = -1``);
@@ -65,6 +67,25 @@ class _Context:
     left_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # monocular points kept out: (pt, kf, uv) per observation
 
 
+def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray, n_points: int) -> np.ndarray:
+    """Per point, the largest angle (degrees) between its first observation's viewing ray and the
+    others (a lower bound of the largest pairwise parallax, at least half of it; 0 for one observation).
+
+    ``centres (M, 3)``: the observing camera centre per observation, ``X_world (M, 3)``: the point per
+    observation, ``point (M,)``: point row of each observation in ``0 .. n_points - 1``. Parallax as
+    in ORB-SLAM2's triangulation test (Mur-Artal & Tardos 2017: ``cos`` of the ray angle > 0.9998 is
+    too little), vectorized over observations.
+    """
+    ray = X_world - centres
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    first = np.full(n_points, -1, np.int64)
+    first[point[::-1]] = np.arange(len(point))[::-1]  # the last write wins: the first observation
+    cos = np.einsum("ij,ij->i", ray, ray[first[point]])
+    min_cos = np.ones(n_points)
+    np.minimum.at(min_cos, point, cos)
+    return np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
+
+
 def _segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
     return [k for k in map_.keyframes.values() if k.segment == segment and not k.bad]
 
@@ -101,6 +122,9 @@ class LocalMapper:
         # called as ``cb(kf_id, T_world_kf_before, T_world_kf_after)`` when the newest keyframe moves
         # (System re-anchors the tracker's motion model on it, ORB-SLAM's UpdateLastFrame)
         self.correction_listeners: list = []
+        # RGB-D: {kf_id: DenseLink} from the tracker's dense alignments, constraints in local BA
+        # (vslam.backend.dense_links; filled by the System when frontend.dense_links is on)
+        self.dense_links: dict = {}
 
     # ------------------------------------------------------------------ feeding
     def on_keyframe(self, kf: KeyFrame) -> None:
@@ -126,6 +150,12 @@ class LocalMapper:
                 self._fuse_neighbours(kf_id)
             built = self._build_local(kf_id)
             epoch = self.map.loop_epoch
+            n_links = 0
+            if built is not None and self.dense_links:
+                from vslam.backend.dense_links import add_dense_links
+
+                linked, n_links = add_dense_links(built[0], self.dense_links)
+                built = (linked, built[1])
         if built is None:
             return None
         problem, ctx = built
@@ -135,6 +165,10 @@ class LocalMapper:
             self.counts["failed"] += 1
             LOG.warning("local BA on keyframe %d failed: %s", kf_id, exc)
             return None
+        if n_links:
+            from vslam.backend.dense_links import strip_dense_links
+
+            problem, result = strip_dense_links(problem, result, n_links)
         with self.lock:
             if self.map.loop_epoch != epoch:  # realtime: a loop correction moved the map meanwhile
                 self.counts["stale_dropped"] = self.counts.get("stale_dropped", 0) + 1
@@ -236,6 +270,11 @@ class LocalMapper:
         has3 = np.bincount(inv, weights=(np.isfinite(c["ur"]) | np.isfinite(c["d"])).astype(float),
                            minlength=len(pt_ids)) > 0
         ok_pt = (n_obs >= 2) | has3
+        if self.sensor != "mono" and self.config.depthless_min_parallax_deg > 0:
+            # stereo / RGB-D: a point without any depth or disparity here (far stereo points enter
+            # as monocular) whose rays barely diverge has an unobservable depth
+            ok_pt &= has3 | (max_parallax_deg(self._centres(kf_ids, c["kf"]), store.position[c["pt"]], inv, len(pt_ids))
+                             >= self.config.depthless_min_parallax_deg)
         left_out = None
         if self.sensor == "mono" and self.config.mono_min_observations > 2:
             # two-view points: the least constrained depth, which BA pushes outwards (~1 % per
@@ -265,6 +304,13 @@ class LocalMapper:
         )
         return problem, _Context(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
                                  new_kf=new_kf, left_out=left_out)
+
+    def _centres(self, kf_ids: list[int], obs_kf: np.ndarray) -> np.ndarray:
+        """Camera centre (world) of the keyframe of each observation ``obs_kf (M,)``."""
+        ids = np.asarray(kf_ids, np.int64)
+        order = np.argsort(ids)
+        centres = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in ids])
+        return centres[order[np.searchsorted(ids[order], obs_kf)]]
 
     # ------------------------------------------------------------------ fusion (SearchInNeighbors)
     def _fuse_neighbours(self, kf_id: int) -> None:
@@ -580,6 +626,11 @@ class LocalMapper:
             if built is None:
                 return None
             problem, ctx = built
+            n_links = 0
+            if self.dense_links:
+                from vslam.backend.dense_links import add_dense_links
+
+                problem, n_links = add_dense_links(problem, self.dense_links)
             epoch = self.map.loop_epoch
             known = set(self.map.keyframes)
         t0 = time.perf_counter()
@@ -588,6 +639,10 @@ class LocalMapper:
         except Exception as exc:
             LOG.warning("global BA failed: %s", exc)
             return None
+        if n_links:
+            from vslam.backend.dense_links import strip_dense_links
+
+            problem, result = strip_dense_links(problem, result, n_links)
         with self.lock:
             if self.map.loop_epoch != epoch:
                 LOG.info("global BA dropped: a loop correction moved the map during the solve")

@@ -65,7 +65,9 @@ class Observations:
 
     ``meas (M, 3)`` holds ``(u, v, u_right)`` (``u_right`` 0 where mono), ``baseline (M,)`` the
     (virtual) stereo baseline per observation, ``stereo (M,)`` whether ``u_right`` is measured and
-    ``info (M,)`` the information ``1 / sigma^2``.
+    ``info (M,)`` the information ``1 / sigma^2``. ``disparity (M,)`` (default all False) makes the
+    third residual the disparity ``(u - u_right) - fx b / z`` instead of ``u_right - (u - fx b / z)``:
+    independent errors on ``(u, v, disparity)`` rather than on ``(u, v, u_right)``.
     """
 
     cam: np.ndarray
@@ -74,9 +76,13 @@ class Observations:
     baseline: np.ndarray
     stereo: np.ndarray
     info: np.ndarray
+    disparity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.meas_T = np.ascontiguousarray(self.meas.T)
+        if self.disparity is None:
+            self.disparity = np.zeros(len(self.cam), bool)
+        self.any_disparity = bool(np.any(self.disparity))
 
 
 @dataclass(frozen=True)
@@ -140,7 +146,11 @@ def _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth):
     r = np.empty((3, len(z)))
     np.subtract(obs.meas_T[0], u, out=r[0])
     np.subtract(obs.meas_T[1], intr.fy * X_cam[1] * inv_z + intr.cy, out=r[1])
-    r[2] = np.where(obs.stereo, obs.meas_T[2] - (u - intr.fx * obs.baseline * inv_z), 0.0)
+    disp = intr.fx * obs.baseline * inv_z
+    r2 = obs.meas_T[2] - (u - disp)
+    if obs.any_disparity:
+        r2 = np.where(obs.disparity, (obs.meas_T[0] - obs.meas_T[2]) - disp, r2)
+    r[2] = np.where(obs.stereo, r2, 0.0)
     chi2 = obs.info * np.einsum("im,im->m", r, r)
     chi2[~ok] = np.inf
     return r, chi2, X_cam, Rm
@@ -292,19 +302,25 @@ def _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     jb = intr.fy * inv_z
     c0 = -ja * x * inv_z
     c1 = -jb * y * inv_z
-    c2 = -ja * (x - obs.baseline) * inv_z
+    # third row: u_right = fx (x - b) / z + cx has d/dX = (ja, 0, c2); the disparity fx b / z has (0, 0, c2)
+    if obs.any_disparity:
+        k2 = np.where(obs.disparity, 0.0, ja)
+        c2 = -ja * np.where(obs.disparity, obs.baseline, x - obs.baseline) * inv_z
+    else:
+        k2 = ja
+        c2 = -ja * (x - obs.baseline) * inv_z
     w0c0, w1c1, w2c2 = w0 * c0, w1 * c1, w2 * c2
     m = len(x)
     A = np.empty((3, 3, m))
-    A[0, 0] = ja * ja * (w0 + w2)
+    A[0, 0] = ja * ja * w0 + k2 * k2 * w2
     A[0, 1] = A[1, 0] = 0.0
-    A[0, 2] = A[2, 0] = ja * (w0c0 + w2 * c2)
+    A[0, 2] = A[2, 0] = ja * w0c0 + k2 * w2c2
     A[1, 1] = jb * jb * w1
     A[1, 2] = A[2, 1] = jb * w1c1
     A[2, 2] = w0c0 * c0 + w1c1 * c1 + w2c2 * c2
     r0, r1, r2 = r
     b = np.empty((3, m))
-    b[0] = ja * (w0 * r0 + w2 * r2)
+    b[0] = ja * w0 * r0 + k2 * w2 * r2
     b[1] = jb * w1 * r1
     b[2] = w0c0 * r0 + w1c1 * r1 + w2c2 * r2
     B = np.einsum("ilm,ljm->ijm", A, Rm)
@@ -384,7 +400,8 @@ def solve(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray,
 def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_initial, relative_tolerance, min_depth):
     R, t, X = R.copy(), t.copy(), X.copy()
     order = np.argsort(obs.cam, kind="stable")  # camera-sorted observations: camera sums are contiguous
-    obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order], obs.info[order])
+    obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order],
+                       obs.info[order], obs.disparity[order])
     active = active[order]
     huber = None if huber is None else huber[order]
     n_c = int(cam_var.max(initial=-1)) + 1

@@ -9,6 +9,12 @@ frame the reader skips is still skipped (and counted by the reader), and an exce
 raises reaches the consumer after the frames decoded before it, at the same position it would
 have without prefetching. Closing the returned iterator (or dropping it) stops the thread.
 
+:func:`prefetch_process` does the same in a child *process* for a :class:`FrameRange` (a picklable
+dataset slice): decoding and the per-frame ``work`` (e.g. feature detection) then run outside this
+interpreter, so they never compete with the tracker for the GIL. It starts a fresh interpreter
+(``spawn``, about a second), so :func:`choose_prefetch` picks it only for long runs, on two or more
+cores, when the main module is safe to import again in the child.
+
 Example:
     >>> for frame in prefetch(ds.frames(), depth=4):     # doctest: +SKIP
     ...     system.track(frame)
@@ -16,9 +22,13 @@ Example:
 from __future__ import annotations
 
 import logging
+import os
+import pickle
 import queue
+import sys
 import threading
-from typing import Callable, Iterable, Iterator, TypeVar
+import time
+from typing import Any, Callable, Iterable, Iterator, TypeVar
 
 log = logging.getLogger(__name__)
 
@@ -100,3 +110,169 @@ def prefetch(items: Iterable[T], depth: int = 4, prepare: Callable[[T], object] 
     finally:
         stop.set()
         thread.join(timeout=5.0)
+
+
+class FrameRange:
+    """Frames ``start .. stop - 1`` of a dataset: iterates like ``dataset.frames(start, stop)`` and
+    pickles (with its dataset), so a prefetch process can read the frames itself."""
+
+    def __init__(self, dataset: Any, start: int = 0, stop: int | None = None) -> None:
+        self.dataset = dataset
+        self.start = start
+        self.stop = len(dataset) if stop is None else stop
+
+    def __iter__(self) -> Iterator[Any]:
+        return iter(self.dataset.frames(self.start, self.stop))
+
+    def __len__(self) -> int:
+        return max(0, self.stop - self.start)
+
+
+PREFETCH_MODES = ("auto", "thread", "process", "none")
+PROCESS_MIN_FRAMES = 150  # below this, starting an interpreter costs more than it saves
+
+
+def _main_is_reimportable() -> bool:
+    """Whether a ``spawn`` child may import this program's main module again without re-running
+    it: interactive sessions, ``python -c`` and ``python -m`` are never re-run; a script only when
+    it guards its work with ``if __name__ == "__main__"`` (pip's console scripts, ``vslam``, do)."""
+    main = sys.modules.get("__main__")
+    if main is None or getattr(main, "__spec__", None) is not None:
+        return True
+    path = getattr(main, "__file__", None)
+    if not path:
+        return True
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            src = fh.read()
+    except OSError:
+        return False
+    return "__name__" in src and "__main__" in src
+
+
+def _picklable(obj: Any) -> bool:
+    try:
+        pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:  # e.g. a reader holding an open video capture
+        log.debug("%r cannot be sent to a process; prefetching in a thread", obj)
+        return False
+    return True
+
+
+def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
+    """Resolve ``mode`` (one of :data:`PREFETCH_MODES`) for ``frames``: ``auto`` is ``process``
+    for a :class:`FrameRange` of at least :data:`PROCESS_MIN_FRAMES` frames on a machine with two or
+    more cores, from a non-daemonic process whose main module is safe to import again, else
+    ``thread``; ``process`` falls back to ``thread`` when ``frames`` cannot be sent to a process."""
+    import multiprocessing
+
+    if mode not in PREFETCH_MODES:
+        from vslam.errors import ConfigError
+
+        raise ConfigError(f"prefetch mode {mode!r} is not one of {', '.join(PREFETCH_MODES)}")
+    if mode in ("thread", "none"):
+        return mode
+    ok = isinstance(frames, FrameRange) and not multiprocessing.current_process().daemon and _picklable(frames)
+    if mode == "process":
+        return "process" if ok else "thread"
+    long_run = (total if total is not None else len(frames) if ok else 0) >= PROCESS_MIN_FRAMES
+    if ok and long_run and (os.cpu_count() or 1) >= 2 and _main_is_reimportable():
+        return "process"
+    return "thread"
+
+
+def _child_put(q, item, stop) -> bool:
+    while not stop.is_set():
+        try:
+            q.put(item, timeout=0.1)
+            return True
+        except queue.Full:
+            continue
+    return False
+
+
+def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, balance: bool) -> None:
+    """Body of the prefetch process: read, ``work`` on and queue every frame, in order (with
+    ``balance``, ``work`` is skipped while the consumer waits: result None)."""
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)  # one core for this process; the tracker has the other
+    except Exception:  # pragma: no cover - OpenCV is a dependency
+        pass
+    try:
+        for frame in source:
+            if stop.is_set():
+                break
+            t0 = time.perf_counter()
+            result = work(frame) if work is not None and (not balance or q.qsize() > 0) else None
+            if not _child_put(q, ("frame", frame, result, time.perf_counter() - t0), stop):
+                break
+        if stop.is_set():  # the consumer stopped: exit without flushing what it will never read
+            q.cancel_join_thread()
+            return
+    except BaseException as exc:  # noqa: BLE001 - delivered to the consumer in order
+        try:
+            pickle.dumps(exc)
+        except Exception:
+            from vslam.errors import DatasetError
+
+            exc = DatasetError(f"{type(exc).__name__}: {exc}")
+        _child_put(q, ("raise", exc), stop)
+        return
+    _child_put(q, ("end",), stop)
+
+
+def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = None,
+                     depth: int = 4, balance: bool = True) -> Iterator[tuple[Any, Any, float]]:
+    """Yield ``(frame, work(frame), seconds of work)`` for the frames of ``source``, read and
+    worked on ahead in a child process (at most ``depth`` waiting).
+
+    With ``balance`` (as :func:`prefetch`), ``work`` is skipped (result None) while the queue is
+    empty, i.e. while the consumer is waiting for the child: the consumer then does that work
+    itself, so the work splits between the two processes by itself whichever is slower.
+
+    ``work`` must be picklable (e.g. :class:`vslam.frontend.prepare.FramePreparer`). Order,
+    skipped corrupt frames and a reader's exception (raised here, after the frames read before
+    it) are as with :func:`prefetch`. Closing the iterator stops the process.
+
+    Raises:
+        DatasetError: the process died without reporting an error (e.g. killed for memory).
+    """
+    import multiprocessing
+
+    from vslam.errors import DatasetError
+
+    ctx = multiprocessing.get_context("spawn")
+    q = ctx.Queue(maxsize=max(1, depth))
+    stop = ctx.Event()
+    proc = ctx.Process(target=_child_main, args=(source, work, q, stop, balance), name="vslam-prefetch", daemon=True)
+    proc.start()
+    try:
+        while True:
+            try:
+                msg = q.get(timeout=0.5)
+            except queue.Empty:
+                if not proc.is_alive():
+                    try:
+                        msg = q.get(timeout=0.5)  # anything it queued just before exiting
+                    except queue.Empty:
+                        raise DatasetError(
+                            f"the frame-reading process exited with code {proc.exitcode} without "
+                            "finishing; rerun (it may have run out of memory)"
+                        ) from None
+                else:
+                    continue
+            if msg[0] == "end":
+                return
+            if msg[0] == "raise":
+                raise msg[1]
+            yield msg[1], msg[2], msg[3]
+    finally:
+        stop.set()
+        proc.join(timeout=3.0)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(timeout=2.0)
+        q.cancel_join_thread()
+        q.close()

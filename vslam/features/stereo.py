@@ -10,7 +10,7 @@ minimum and its two neighbours gives the sub-pixel offset
 ``delta = (s[-1] - s[+1]) / (2 (s[-1] + s[+1] - 2 s[0]))``. That parabola is biased on a V-shaped
 SAD curve (0.2-0.3 px median error on an exactly shifted texture), so by default
 (``StereoConfig.subpixel = "lk"``) the disparity is then refined by a 1-D Lucas-Kanade step at
-full resolution (0.02 px median on the same test); see :func:`_refine_lk`.
+full resolution (0.02 px median on the same test); see :func:`refine_disparity_row`.
 
 Depth is then ``z = fx * baseline / (u_left - u_right)``; see :func:`stereo_depth`.
 
@@ -112,79 +112,9 @@ def _refine_sad(left_levels: list[np.ndarray], right_levels: list[np.ndarray], u
     return out, ok
 
 
-def _refine_lk(left: np.ndarray, right: np.ndarray, u_l: np.ndarray, v_l: np.ndarray,
-               disp0: np.ndarray, w: int, max_change: np.ndarray, iters: int = 10
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """1-D Lucas-Kanade refinement of the disparity at full resolution (Lucas & Kanade 1981, with
-    the shift restricted to the epipolar row): Gauss-Newton on
-    ``sum_window ((I_r(x - d) - mean) - (I_l(x) - mean))^2`` starting from ``disp0``, the right
-    image sampled with linear interpolation along the row. Zero-mean patches make it robust to a
-    brightness offset between the cameras. ``d`` may move at most ``max_change`` px from
-    ``disp0``. Works on per-point row strips cut once; only unconverged points iterate.
-    Returns ``(disparity, ok)``."""
-    n = len(u_l)
-    if n == 0:
-        return np.zeros(0), np.zeros(0, bool)
-    h, wid = left.shape
-    W = 2 * w + 1
-    M = int(np.ceil(float(np.max(max_change)))) + 2  # strip margin each side
-    SW = W + 2 * M + 2
-    dx = np.arange(-w, w + 1)
-    ul = np.round(u_l).astype(np.int64)
-    vl = np.round(v_l).astype(np.int64)
-    d0 = np.asarray(disp0, np.float64)
-    finite = np.isfinite(d0)
-    x_start = np.round(ul - np.where(finite, d0, 0.0)).astype(np.int64) - w - M - 1  # strip column 0
-    ok = (vl - w >= 0) & (vl + w < h) & (ul - w >= 0) & (ul + w < wid) & (x_start >= 0) & (x_start + SW < wid)
-    ok &= finite
-    d = np.where(ok, d0, 0.0)
-    sel = np.flatnonzero(ok)
-    if len(sel) == 0:
-        return d, ok
-    rows = (vl[sel, None] + dx[None, :])[:, :, None]  # (K, W, 1)
-    pl = left[rows, (ul[sel, None] + dx[None, :])[:, None, :]].astype(np.float32)
-    pl -= pl.mean(axis=(1, 2), keepdims=True)
-    strip = right[rows, (x_start[sel, None] + np.arange(SW)[None, :])[:, None, :]].astype(np.float32)
-    grad = np.zeros_like(strip)
-    grad[:, :, 1:-1] = 0.5 * (strip[:, :, 2:] - strip[:, :, :-2])  # d I_r / d x
-    ds = d[sel].copy()
-    good = np.ones(len(sel), bool)
-    active = np.arange(len(sel))
-    win_s = np.lib.stride_tricks.sliding_window_view(strip, W, axis=2).transpose(0, 2, 1, 3)  # (K, S, W, W)
-    win_g = np.lib.stride_tricks.sliding_window_view(grad, W, axis=2).transpose(0, 2, 1, 3)
-    for _ in range(iters):
-        if len(active) == 0:
-            break
-        # window of the current disparity starts at column (ul - d) - w of the right image
-        pos = (ul[sel[active]] - ds[active]) - w - x_start[sel[active]]
-        k = np.floor(pos).astype(np.int64)
-        inside = (k >= 1) & (k + W + 1 < SW - 1)
-        good[active[~inside]] = False
-        active, pos, k = active[inside], pos[inside], k[inside]
-        if len(active) == 0:
-            break
-        a = (pos - k).astype(np.float32)[:, None, None]
-        s0, s1 = win_s[active, k], win_s[active, k + 1]  # (K, W, W) windows starting at k, k+1
-        g0, g1 = win_g[active, k], win_g[active, k + 1]
-        ir = (1 - a) * s0 + a * s1
-        g = (1 - a) * g0 + a * g1
-        r = (ir - ir.mean(axis=(1, 2), keepdims=True)) - pl[active]
-        g = g - g.mean(axis=(1, 2), keepdims=True)
-        hgg = (g * g).sum(axis=(1, 2))
-        # I_r(x - d - delta) ~ I_r(x - d) - delta g  ->  delta = sum(r g) / sum(g g)
-        flat = hgg <= 1e-6
-        good[active[flat]] = False
-        step = np.clip((r * g).sum(axis=(1, 2)) / np.where(flat, 1.0, hgg), -1.0, 1.0)
-        ds[active] += np.where(flat, 0.0, step)
-        active = active[~flat & (np.abs(step) >= 1e-3)]
-    d[sel] = ds
-    ok[sel] = good & (np.abs(ds - d0[sel]) <= max_change[sel])
-    return d, ok
-
-
 def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, disp0: np.ndarray,
-                         half_window: int = 5, iters: int = 5, max_change: float = 3.0, tol: float = 0.25
-                         ) -> tuple[np.ndarray, np.ndarray]:
+                         half_window: int = 5, iters: int = 5, max_change: float | np.ndarray = 3.0,
+                         tol: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
     """Row-constrained (1-D) Lucas-Kanade refinement of stereo disparities at full resolution.
 
     Gauss-Newton on ``E(d) = sum_window ((I_r(x - d, y) - mean) - (I_l(x, y) - mean))^2`` over the
@@ -213,7 +143,8 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
         disp0: (N,) initial disparities in pixels (NaN = skip), e.g. from a pyramidal tracker.
         half_window: window half size (5 -> 11x11).
         iters: Gauss-Newton iterations.
-        max_change: the result must stay within this many pixels of ``disp0``.
+        max_change: the result must stay within this many pixels of ``disp0`` (a number, or one
+            per point, e.g. the keypoint's pyramid scale).
         tol: the last step must be smaller than this (pixels) for the point to count as converged.
 
     Returns:
@@ -233,7 +164,8 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
     w = int(half_window)
     W = 2 * w + 1
     N = float(W * W)
-    M = int(np.ceil(max_change)) + 1  # strip margin each side of the initial window
+    max_change = np.broadcast_to(np.asarray(max_change, np.float64), (n,))
+    M = int(np.ceil(float(np.max(max_change)))) + 1  # strip margin each side of the initial window
     S = W + 2 * M  # strip width: columns of the right image cut per point
     ul = np.rint(uv[:, 0]).astype(np.int64)
     vl = np.rint(uv[:, 1]).astype(np.int64)
@@ -300,7 +232,7 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
         srg = s_ig - s_i * s_g / N - s_lg
         step = np.clip(srg / np.where(flat, 1.0, hgg), -1.0, 1.0)
         d += np.where(flat, 0.0, step)
-    good &= (np.abs(step) < tol) & (np.abs(d - d0[sel]) <= max_change)
+    good &= (np.abs(step) < tol) & (np.abs(d - d0[sel]) <= max_change[sel])
     disp[sel] = np.where(good, d, d0[sel])
     ok[sel] = good
     return disp, ok
@@ -413,8 +345,9 @@ def match_stereo(left: Features, right: Features, cfg: StereoConfig | None = Non
             d0 = u_l[best_l] - ref
             # accept the LK result where it stays within one level pixel of the SAD estimate
             scale = np.power(sf, left.octave[best_l].astype(np.float64))
-            d_lk, ok_lk = _refine_lk(pl[0], pr[0], u_l[best_l], v_l[best_l], np.where(good, d0, np.nan),
-                                     cfg.lk_window, scale)
+            uv_l = np.stack([u_l[best_l], v_l[best_l]], 1)
+            d_lk, ok_lk = refine_disparity_row(pl[0], pr[0], uv_l, np.where(good, d0, np.nan),
+                                               cfg.lk_window, iters=10, max_change=scale)
             ok_lk &= good
             ref = np.where(ok_lk, u_l[best_l] - d_lk, ref)
             good = ok_lk

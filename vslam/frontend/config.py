@@ -88,6 +88,14 @@ class FrontendConfig:
     # --- loss / recovery
     max_lost_frames: int = 3  # after this many consecutive lost frames, re-initialize a new map segment
     depth_icp_fallback: bool = True  # RGB-D: a frame with no feature pose is aligned by depth ICP to the last tracked one before it counts as lost
+    # RGB-D: a feature pose on fewer than depth_refine_max_inliers inliers is refined by dense alignment
+    # (point-to-plane ICP + photometric, on images reduced depth_refine_downsample times) to the last
+    # tracked frame, kept when the depths agree at least as well (Tracker._refine_with_depth)
+    depth_refine: bool = True
+    depth_refine_max_inliers: int = 150
+    depth_refine_downsample: int = 2
+    dense_links: bool = True  # RGB-D: keyframes posed by dense alignment keep that relative pose in local BA (vslam.backend.dense_links)
+    depth_icp_photometric: bool = True  # the depth ICP fallback also aligns the grey images (dense RGB-D odometry), at depth_refine_downsample
 
     def __post_init__(self) -> None:
         if self.association not in ASSOCIATIONS:
@@ -96,6 +104,8 @@ class FrontendConfig:
             raise ConfigError(f"frontend.motion must be one of {MOTIONS}, got {self.motion!r}")
         if self.min_inliers < 6:
             raise ConfigError(f"frontend.min_inliers must be >= 6, got {self.min_inliers}")
+        if self.depth_refine_downsample < 1:
+            raise ConfigError(f"frontend.depth_refine_downsample must be >= 1 (1 = full resolution), got {self.depth_refine_downsample}")
 
     def check_sensor(self, sensor: str) -> None:
         """Raise :class:`ConfigError` for a motion method the sensor cannot support."""

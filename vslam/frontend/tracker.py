@@ -30,6 +30,7 @@ from vslam.frontend.initializer import MonoInitializer
 from vslam.frontend.keyframe_policy import need_keyframe
 from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
 from vslam.frontend.motion_model import MotionModel
+from vslam.frontend.prepare import FramePreparer
 from vslam.frontend.observation import (
     Observation, detect_mask, klt_track, sample_depth, stereo_by_flow,
 )
@@ -117,10 +118,17 @@ class Tracker:
         self.n_relocalized = 0
         self.n_depth_bridged = 0  # lost frames given a pose by depth ICP (RGB-D, see _bridge_with_depth)
         self._last_depth: tuple[np.ndarray, np.ndarray] | None = None  # (depth image, T_world_cam) of the last tracked frame
+        self._last_gray: np.ndarray | None = None  # grey image of the last tracked frame (RGB-D)
+        self.n_depth_refined = 0  # feature poses replaced by their dense RGB-D refinement (see _refine_with_depth)
+        # RGB-D, frontend.dense_links: {kf_id: DenseLink} for keyframes posed by dense alignment to the
+        # previous keyframe (vslam.backend.dense_links: local BA keeps that relative pose)
+        self.dense_links: dict = {}
+        self._dense_rel: np.ndarray | None = None  # this frame's T_prev_cur when dense alignment posed it
+        self._last_tracked_kf: int | None = None  # keyframe id of the last tracked frame, None if not a keyframe
         # prepare() results by frame index: (frame, gray, Features or None); filled ahead of track()
         self._prepared: dict[int, tuple[Frame, np.ndarray, Any]] = {}
         self._prepared_feats = None
-        self._prep_detector = None
+        self._preparer = self.preparer()
         self.timers.setdefault("prepare", 0.0)  # prepare() time (another thread's, when prefetching)
 
     # ================================================================== per frame
@@ -130,18 +138,21 @@ class Tracker:
         :meth:`track` (the runner's decoding thread calls it, see :func:`vslam.runner.run_sequence`).
         Uses its own detector instance; :meth:`track` picks the result up by frame identity."""
         t0 = time.perf_counter()
-        gray = frame.gray
-        feats = None
-        if self.cfg.association == "match":
-            if self._prep_detector is None:
-                from vslam.features.detect import create_detector
+        gray, feats = self._preparer(frame)
+        self.adopt_prepared(frame, gray, feats, time.perf_counter() - t0)
 
-                self._prep_detector = create_detector(self.fcfg)
-            feats = self._prep_detector.detect(gray)
+    def preparer(self) -> FramePreparer:
+        """A picklable copy of what :meth:`prepare` runs, to run it in another process; hand its
+        result to :meth:`adopt_prepared`."""
+        return FramePreparer(self.fcfg, self.cfg.association)
+
+    def adopt_prepared(self, frame: Frame, gray: np.ndarray, feats: Any, seconds: float = 0.0) -> None:
+        """Take a :class:`FramePreparer` result for ``frame`` (computed elsewhere, e.g. by the
+        runner's prefetch process); :meth:`track` uses it when it gets this very ``frame``."""
         if len(self._prepared) > 64:  # never consumed (frames dropped by the caller): keep memory flat
             self._prepared.clear()
         self._prepared[frame.index] = (frame, gray, feats)
-        self.timers["prepare"] += time.perf_counter() - t0
+        self.timers["prepare"] += seconds
 
     def track(self, frame: Frame) -> TrackOutput:
         self.n_frames += 1
@@ -160,8 +171,31 @@ class Tracker:
         else:
             out = self._track_initialized(frame, gray, obs, klt_prev_idx, T_world_pred)
         if out.T_world_cam is not None and self.sensor == "rgbd" and frame.depth is not None:
+            if self._dense_rel is not None and out.is_keyframe and self._last_tracked_kf is not None:
+                self._add_dense_link(frame, out.ref_keyframe, self._last_tracked_kf, self._dense_rel)
+            self._last_tracked_kf = out.ref_keyframe if out.is_keyframe else None
             self._last_depth = (frame.depth, out.T_world_cam.copy())
+            self._last_gray = gray
+        self._dense_rel = None
         return out
+
+    def _T_world_last_tracked(self) -> np.ndarray:
+        """The current pose of the last tracked frame (the one of ``_last_depth``): its keyframe's
+        (moved by local BA / loop corrections since) when it became one, else as tracked and corrected."""
+        kf = self.map.keyframes.get(self._last_tracked_kf) if self._last_tracked_kf is not None else None
+        if kf is not None:
+            return kf.T_world_cam
+        return self._last_depth[1] if self.T_world_last_good is None else self.T_world_last_good
+
+    def _add_dense_link(self, frame: Frame, kf_id: int, prev_kf_id: int, T_prev_cur: np.ndarray) -> None:
+        """Record that keyframe ``kf_id`` was posed by dense alignment to keyframe ``prev_kf_id``."""
+        if not self.cfg.dense_links or kf_id is None or kf_id == prev_kf_id:
+            return
+        from vslam.backend.dense_links import DenseLink, sample_depth_grid
+
+        uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.max_depth, 6.0))
+        if len(z):
+            self.dense_links[kf_id] = DenseLink(kf_id, prev_kf_id, T_prev_cur.copy(), uv, z)
 
     # ------------------------------------------------------------------ features
     def _observe(self, frame: Frame, gray: np.ndarray, T_world_pred: np.ndarray | None):
@@ -402,6 +436,8 @@ class Tracker:
                 T_world_cam, n_inl = self._relocalize(obs)
         if T_world_cam is None:
             return self._lost(frame, gray, obs)
+        if cfg.depth_refine and self.sensor == "rgbd" and cfg.motion != "2d2d" and n_inl < cfg.depth_refine_max_inliers:
+            T_world_cam = self._refine_with_depth(frame, gray, T_world_cam)
         # ---------------------------------------------------------- keyframe?
         t0 = time.perf_counter()
         self.state = "ok"
@@ -422,6 +458,8 @@ class Tracker:
             # depth sensors: few close tracked points means the map is thinning (ORB-SLAM2 "close points")
             close = np.isfinite(obs.depth) & (obs.point_ids >= 0)
             force |= close.sum() < 100 and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > 70
+        if self._dense_rel is not None and cfg.dense_links and self._last_tracked_kf is not None:
+            force = True  # posed by dense alignment to a keyframe: a keyframe keeps that link for local BA
         moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
         ratio = cfg.kf_tracked_ratio_mono if self.sensor == "mono" else cfg.kf_tracked_ratio
         is_kf = need_keyframe(cfg, self.frames_since_kf, n_tracked_ref, n_ref, n_inl, moved, force, ratio)
@@ -472,22 +510,18 @@ class Tracker:
         if (not self.cfg.depth_icp_fallback or self.sensor != "rgbd" or self._last_depth is None
                 or frame.depth is None or self.motion_model.T_world_last is None):
             return None
-        from vslam.frontend.depth_icp import align_depth
-
         t0 = time.perf_counter()
-        depth_prev, T_world_prev = self._last_depth
-        T_prev_cur, agree = None, 0.0
-        # from the motion prediction, then from no motion (a turn the prediction did not foresee)
-        for T_guess in (inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)):
-            T_prev_cur, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.min_depth,
-                                            min(self.cfg.max_depth, 6.0))
-            if T_prev_cur is not None:
-                break
+        T_world_prev = self._T_world_last_tracked()
+        # from the motion prediction and from no motion (a turn the prediction did not foresee): the
+        # better-agreeing alignment
+        guesses = [inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
+        T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=self.cfg.depth_icp_photometric)
         self.timers["pose"] += time.perf_counter() - t0
         if T_prev_cur is None:
             log.info("frame %d: depth ICP refused (%.2f of the depths agree)", frame.index, agree)
             return None
         T_world_cam = T_world_prev @ T_prev_cur
+        self._dense_rel = T_prev_cur
         n = int(np.isfinite(obs.depth).sum())
         obs.point_ids[:] = -1
         t0 = time.perf_counter()
@@ -501,6 +535,54 @@ class Tracker:
         self.n_depth_bridged += 1
         log.info("frame %d: no feature pose, bridged by depth ICP (%.2f of the depths agree)", frame.index, agree)
         return TrackOutput(T_world_cam, "ok", True, n, self.ref_kf)
+
+    def _align_to_last(self, frame, gray, guesses: list[np.ndarray], photometric: bool) -> tuple[np.ndarray | None, float]:
+        """``(T_prev_cur, depth agreement)`` of the best-agreeing dense alignment of this frame to the
+        last tracked one (:func:`vslam.frontend.depth_icp.align_depth`) over the initial ``guesses``
+        (``T_prev_cur``), or ``(None, best agreement)`` when none is accepted."""
+        from vslam.frontend.depth_icp import align_depth
+
+        depth_prev = self._last_depth[0]
+        grays = (self._last_gray, gray) if photometric and self._last_gray is not None else (None, None)
+        best, best_agree = None, 0.0
+        for T_guess in guesses:
+            T, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.min_depth,
+                                   min(self.cfg.max_depth, 6.0), gray_prev=grays[0], gray_cur=grays[1],
+                                   downsample=self.cfg.depth_refine_downsample if photometric else 1)
+            if T is not None and (best is None or agree > best_agree):
+                best, best_agree = T, agree
+            elif best is None:
+                best_agree = max(best_agree, agree)
+        return best, best_agree
+
+    def _refine_with_depth(self, frame, gray, T_world_cam: np.ndarray) -> np.ndarray:
+        """RGB-D, a feature pose on few inliers (texture-poor views: the keypoints sit on object
+        outlines, where the depth is ambiguous): refine the motion from the last tracked frame by
+        dense alignment of the whole depth and grey images (point-to-plane ICP + photometric error,
+        :func:`vslam.frontend.depth_icp.align_depth`), started at the feature pose. The refinement
+        is kept when the depths agree at least as well as at the feature pose
+        (:func:`vslam.frontend.depth_icp.depth_agreement`)."""
+        if (self._last_depth is None or self._last_gray is None or frame.depth is None
+                or self.T_world_last_good is None):
+            return T_world_cam
+        from vslam.frontend.depth_icp import depth_agreement
+
+        t0 = time.perf_counter()
+        depth_prev = self._last_depth[0]
+        T_world_prev = self._T_world_last_tracked()
+        T_guess = inv_T(T_world_prev) @ T_world_cam
+        agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess)
+        guesses = [T_guess]
+        if agree0 < 0.9:  # a doubtful feature pose: also from the motion prediction and from no motion
+            guesses += [inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
+        T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=True)
+        self.timers["pose"] += time.perf_counter() - t0
+        if T_prev_cur is None or agree < agree0:
+            return T_world_cam
+        self.n_depth_refined += 1
+        self._dense_rel = T_prev_cur
+        log.debug("frame %d: feature pose refined by dense RGB-D alignment (depth agreement %.2f)", frame.index, agree)
+        return T_world_prev @ T_prev_cur
 
     def _lost(self, frame, gray, obs) -> TrackOutput:
         bridged = self._bridge_with_depth(frame, gray, obs)
