@@ -85,7 +85,7 @@ def run_path(
     progress: bool = False,
     viz: str | None = None,
     dense: bool = False,
-    prefetch: str = "thread",
+    prefetch: str = "auto",
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 

@@ -125,3 +125,24 @@ def test_unpicklable_reader_falls_back_to_a_thread(tmp_path, make_tum):
     ds = open_dataset(make_tum(tmp_path / "seq", n=12))
     ds.lock = threading.Lock()  # e.g. a reader holding an open capture: cannot be pickled
     assert choose_prefetch("process", FrameRange(ds), 1000) == "thread"
+
+
+def test_large_arrays_travel_through_shared_memory_and_stay_writable(tmp_path, make_tum):
+    """Frames go through the shared-memory slots (pickle protocol 5 buffers out of band); a
+    message larger than a slot still arrives through the queue; arrays are the consumer's own."""
+    import threading
+
+    ds = open_dataset(make_tum(tmp_path / "seq", n=4))
+    ctx = multiprocessing.get_context("spawn")
+    frame = next(iter(ds.frames(0, 1)))
+    msg = ("frame", frame, np.arange(10), 0.5)
+    big = pf._Slots(ctx, 2, pf._slot_bytes(FrameRange(ds)))
+    packed = big.pack(msg, threading.Event())
+    assert packed[0] == "shm" and len(packed[2]) < 10_000  # only the small pickle went in-band
+    out = big.unpack(packed)
+    np.testing.assert_array_equal(out[1].image, frame.image)
+    np.testing.assert_array_equal(out[1].depth, frame.depth)
+    out[1].depth[0, 0] = 7.0  # writable, and not a view of the slot
+    assert big.unpack(big.pack(msg, threading.Event()))[1].depth[0, 0] == frame.depth[0, 0]
+    small = pf._Slots(ctx, 1, 1000)
+    assert small.pack(msg, threading.Event()) is msg  # too large for a slot: sent as it is

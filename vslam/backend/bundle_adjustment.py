@@ -63,9 +63,11 @@ def _observations(problem: BAProblem, config: LocalBAConfig) -> schur_lm.Observa
     stereo = has_r | has_d
     meas = np.column_stack([problem.obs_uv, np.where(stereo, u_right, 0.0)])
     disparity = (has_d & (config.rgbd_residual == "disparity")) | (has_r & (config.stereo_residual == "disparity"))
+    info = 1.0 / problem.obs_sigma**2
+    info_d = np.where(disparity, info / config.disparity_sigma_scale**2, info)
     return schur_lm.Observations(
         cam=problem.kf_index(problem.obs_kf), pt=problem.pt_index(problem.obs_pt), meas=meas,
-        baseline=baseline, stereo=stereo, info=1.0 / problem.obs_sigma**2, disparity=disparity,
+        baseline=baseline, stereo=stereo, info=info, disparity=disparity, info_d=info_d,
     )
 
 
@@ -127,7 +129,8 @@ def _solve_gtsam(problem: BAProblem, obs: schur_lm.Observations, cam_var: np.nda
         if key not in models:
             if disparity:
                 # independent (u, v, disparity) errors seen on (u_left, u_right, v) = (u, u - d, v)
-                cov = sigma**2 * np.array([[1.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]])
+                k2 = config.disparity_sigma_scale**2
+                cov = sigma**2 * np.array([[1.0, 1.0, 0.0], [1.0, 1.0 + k2, 0.0], [0.0, 0.0, 1.0]])
                 base = gtsam.noiseModel.Gaussian.Covariance(cov)
             else:
                 base = gtsam.noiseModel.Isotropic.Sigma(3 if stereo else 2, sigma)

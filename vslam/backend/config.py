@@ -65,6 +65,7 @@ class LocalBAConfig:
     rgbd_virtual_baseline: float = RGBD_VIRTUAL_BASELINE  # the tracker's and loop closer's
     rgbd_residual: str = "u_right"
     stereo_residual: str = "u_right"
+    disparity_sigma_scale: float = 1.0
     solver: str = "schur"
     lambda_initial: float = 1e-4
     relative_tolerance: float = 1e-4
@@ -83,7 +84,8 @@ class LocalBAConfig:
             )
         if self.window_size < 2:
             raise ConfigError(f"local BA window_size must be >= 2, got {self.window_size}")
-        for name in ("huber_mono", "huber_stereo", "chi2_mono", "chi2_stereo", "rgbd_virtual_baseline", "lambda_initial"):
+        for name in ("huber_mono", "huber_stereo", "chi2_mono", "chi2_stereo", "rgbd_virtual_baseline", "lambda_initial",
+                     "disparity_sigma_scale"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"backend config {name} must be > 0, got {getattr(self, name)}")
 

@@ -68,6 +68,7 @@ class Observations:
     ``info (M,)`` the information ``1 / sigma^2``. ``disparity (M,)`` (default all False) makes the
     third residual the disparity ``(u - u_right) - fx b / z`` instead of ``u_right - (u - fx b / z)``:
     independent errors on ``(u, v, disparity)`` rather than on ``(u, v, u_right)``.
+    ``info_d (M,)`` (default ``info``) is the information of that third residual.
     """
 
     cam: np.ndarray
@@ -77,9 +78,12 @@ class Observations:
     stereo: np.ndarray
     info: np.ndarray
     disparity: np.ndarray | None = None
+    info_d: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.meas_T = np.ascontiguousarray(self.meas.T)
+        if self.info_d is None:
+            self.info_d = self.info
         if self.disparity is None:
             self.disparity = np.zeros(len(self.cam), bool)
         self.any_disparity = bool(np.any(self.disparity))
@@ -151,7 +155,7 @@ def _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth):
     if obs.any_disparity:
         r2 = np.where(obs.disparity, (obs.meas_T[0] - obs.meas_T[2]) - disp, r2)
     r[2] = np.where(obs.stereo, r2, 0.0)
-    chi2 = obs.info * np.einsum("im,im->m", r, r)
+    chi2 = obs.info * (r[0] * r[0] + r[1] * r[1]) + obs.info_d * (r[2] * r[2])
     chi2[~ok] = np.inf
     return r, chi2, X_cam, Rm
 
@@ -401,14 +405,14 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
     R, t, X = R.copy(), t.copy(), X.copy()
     order = np.argsort(obs.cam, kind="stable")  # camera-sorted observations: camera sums are contiguous
     obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order],
-                       obs.info[order], obs.disparity[order])
+                       obs.info[order], obs.disparity[order], obs.info_d[order])
     active = active[order]
     huber = None if huber is None else huber[order]
     n_c = int(cam_var.max(initial=-1)) + 1
     st = _Structure(obs, cam_var, n_c, len(X))
     var_rows = np.flatnonzero(cam_var >= 0)
     act = active.astype(float) * obs.info
-    w_rows = np.stack([act, act, act * obs.stereo])
+    w_rows = np.stack([act, act, active * obs.info_d * obs.stereo])
     lam = lambda_initial
     r, chi2, X_cam, Rm = _predict(R, t, X, obs, intr, min_depth)
     cost = _robust_cost(np.where(np.isfinite(chi2), chi2, 0.0), active, huber)
