@@ -139,16 +139,22 @@ def test_gtsam_solver_reaches_the_same_estimate():
     assert abs(a.final_cost - b.final_cost) < 1e-6 * b.final_cost
 
 
-@pytest.mark.parametrize("sensor,field,value", [("rgbd", "rgbd_residual", "disparity"),
-                                                 ("stereo", "stereo_residual", "disparity")])
-def test_gtsam_agrees_on_both_depth_residuals(sensor, field, value):
+@pytest.mark.parametrize("sensor,overrides", [("rgbd", {"rgbd_residual": "disparity"}),
+                                               ("stereo", {"stereo_residual": "disparity"}),
+                                               ("rgbd", {"rgbd_residual": "disparity", "disparity_sigma_scale": 0.5})])
+def test_gtsam_agrees_on_both_depth_residuals(sensor, overrides):
     """The disparity residual (GTSAM: the stereo factor with the equivalent full covariance on
-    ``(u_left, u_right, v)``) and the u_right residual reach the same minimum in both solvers, and the
-    two models are different estimators (their minima differ)."""
+    ``(u_left, u_right, v)``, also with its own sigma ``disparity_sigma_scale * sigma``) and the u_right
+    residual reach the same minimum in both solvers, and the models are different estimators (their
+    minima differ)."""
     problem, _ = make_ba_problem(sensor=sensor, n_points=300, outlier_fraction=0.0, max_octave=3, seed=7)
     default = local_bundle_adjustment(problem, LocalBAConfig(**_KEEP_ALL))
-    a = local_bundle_adjustment(problem, LocalBAConfig(solver="schur", **{field: value}, **_KEEP_ALL))
-    b = local_bundle_adjustment(problem, LocalBAConfig(solver="gtsam", **{field: value}, **_KEEP_ALL))
+    a = local_bundle_adjustment(problem, LocalBAConfig(solver="schur", **overrides, **_KEEP_ALL))
+    b = local_bundle_adjustment(problem, LocalBAConfig(solver="gtsam", **overrides, **_KEEP_ALL))
+    if "disparity_sigma_scale" in overrides:  # the scale is used, not ignored by both solvers
+        same_sigma = {k: v for k, v in overrides.items() if k != "disparity_sigma_scale"}
+        c = local_bundle_adjustment(problem, LocalBAConfig(solver="schur", **same_sigma, **_KEEP_ALL))
+        assert pose_errors(a.T_world_cam, c.T_world_cam)[0].max() > 1e-5
     dt, dr = pose_errors(a.T_world_cam, b.T_world_cam)
     assert dt.max() < 1e-5 and dr.max() < 1e-4, (dt.max(), dr.max())
     assert abs(a.final_cost - b.final_cost) < 1e-6 * b.final_cost

@@ -64,7 +64,8 @@ def _observations(problem: BAProblem, config: LocalBAConfig) -> schur_lm.Observa
     meas = np.column_stack([problem.obs_uv, np.where(stereo, u_right, 0.0)])
     disparity = (has_d & (config.rgbd_residual == "disparity")) | (has_r & (config.stereo_residual == "disparity"))
     info = 1.0 / problem.obs_sigma**2
-    info_d = np.where(disparity, info / config.disparity_sigma_scale**2, info)
+    # sigma of the disparity residual: disparity_sigma_scale * sigma (None: the same as u and v)
+    info_d = None if config.disparity_sigma_scale == 1.0 else np.where(disparity, info / config.disparity_sigma_scale**2, info)
     return schur_lm.Observations(
         cam=problem.kf_index(problem.obs_kf), pt=problem.pt_index(problem.obs_pt), meas=meas,
         baseline=baseline, stereo=stereo, info=info, disparity=disparity, info_d=info_d,

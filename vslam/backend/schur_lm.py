@@ -82,6 +82,7 @@ class Observations:
 
     def __post_init__(self) -> None:
         self.meas_T = np.ascontiguousarray(self.meas.T)
+        self.uniform_info = self.info_d is None  # the three rows share ``info`` (the exact original arithmetic)
         if self.info_d is None:
             self.info_d = self.info
         if self.disparity is None:
@@ -155,7 +156,10 @@ def _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth):
     if obs.any_disparity:
         r2 = np.where(obs.disparity, (obs.meas_T[0] - obs.meas_T[2]) - disp, r2)
     r[2] = np.where(obs.stereo, r2, 0.0)
-    chi2 = obs.info * (r[0] * r[0] + r[1] * r[1]) + obs.info_d * (r[2] * r[2])
+    if obs.uniform_info:
+        chi2 = obs.info * np.einsum("im,im->m", r, r)
+    else:
+        chi2 = obs.info * (r[0] * r[0] + r[1] * r[1]) + obs.info_d * (r[2] * r[2])
     chi2[~ok] = np.inf
     return r, chi2, X_cam, Rm
 
@@ -405,14 +409,14 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
     R, t, X = R.copy(), t.copy(), X.copy()
     order = np.argsort(obs.cam, kind="stable")  # camera-sorted observations: camera sums are contiguous
     obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order],
-                       obs.info[order], obs.disparity[order], obs.info_d[order])
+                       obs.info[order], obs.disparity[order], None if obs.uniform_info else obs.info_d[order])
     active = active[order]
     huber = None if huber is None else huber[order]
     n_c = int(cam_var.max(initial=-1)) + 1
     st = _Structure(obs, cam_var, n_c, len(X))
     var_rows = np.flatnonzero(cam_var >= 0)
     act = active.astype(float) * obs.info
-    w_rows = np.stack([act, act, active * obs.info_d * obs.stereo])
+    w_rows = np.stack([act, act, act * obs.stereo if obs.uniform_info else active * obs.info_d * obs.stereo])
     lam = lambda_initial
     r, chi2, X_cam, Rm = _predict(R, t, X, obs, intr, min_depth)
     cost = _robust_cost(np.where(np.isfinite(chi2), chi2, 0.0), active, huber)
