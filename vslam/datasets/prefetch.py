@@ -266,10 +266,10 @@ def _slot_bytes(source: FrameRange) -> int | None:
     return int(1.5 * n) + (2 << 20)
 
 
-def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, balance: bool,
+def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, waiting,
                 slots: _Slots | None = None) -> None:
-    """Body of the prefetch process: read, ``work`` on and queue every frame, in order (with
-    ``balance``, ``work`` is skipped while the consumer waits: result None)."""
+    """Body of the prefetch process: read, ``work`` on and queue every frame, in order; ``work``
+    is skipped (result None) while ``waiting`` (a shared flag, or None) says the consumer waits."""
     try:
         import cv2
 
@@ -281,7 +281,9 @@ def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, 
             if stop.is_set():
                 break
             t0 = time.perf_counter()
-            result = work(frame) if work is not None and (not balance or q.qsize() > 0) else None
+            # skip the work when the consumer waits (flag) or is about to (nothing queued)
+            idle = waiting is not None and (waiting.value or q.qsize() == 0)
+            result = work(frame) if work is not None and not idle else None
             msg = ("frame", frame, result, time.perf_counter() - t0)
             if slots is not None:
                 msg = slots.pack(msg, stop)
@@ -307,9 +309,10 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     """Yield ``(frame, work(frame), seconds of work)`` for the frames of ``source``, read and
     worked on ahead in a child process (at most ``depth`` waiting).
 
-    With ``balance`` (as :func:`prefetch`), ``work`` is skipped (result None) while the queue is
-    empty, i.e. while the consumer is waiting for the child: the consumer then does that work
-    itself, so the work splits between the two processes by itself whichever is slower.
+    With ``balance``, ``work`` is skipped (result None) for a frame the consumer is already
+    waiting for (a shared flag it sets while blocked on an empty queue): the consumer then does
+    that work itself, so the work splits between the two processes by itself whichever is
+    slower, and the consumer takes it on only when it would otherwise idle.
 
     ``work`` must be picklable (e.g. :class:`vslam.frontend.prepare.FramePreparer`). Order,
     skipped corrupt frames and a reader's exception (raised here, after the frames read before
@@ -325,13 +328,16 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue(maxsize=max(1, depth))
     stop = ctx.Event()
+    waiting = ctx.RawValue("b", 0) if balance else None
     size = _slot_bytes(source)
     slots = _Slots(ctx, max(1, depth) + 2, size) if size else None
-    proc = ctx.Process(target=_child_main, args=(source, work, q, stop, balance, slots), name="vslam-prefetch",
+    proc = ctx.Process(target=_child_main, args=(source, work, q, stop, waiting, slots), name="vslam-prefetch",
                        daemon=True)
     proc.start()
     try:
         while True:
+            if waiting is not None and q.empty():
+                waiting.value = 1
             try:
                 msg = q.get(timeout=0.5)
             except queue.Empty:
@@ -345,6 +351,8 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
                         ) from None
                 else:
                     continue
+            if waiting is not None:
+                waiting.value = 0
             if slots is not None:
                 msg = slots.unpack(msg)
             if msg[0] == "end":
