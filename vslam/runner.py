@@ -206,6 +206,7 @@ def run_sequence(
             "wall_s": round(wall, 3),
             "fps": round(n_frames / wall, 2) if wall > 0 else 0.0,
             "read_ms": round(1000.0 * t_read / max(n_frames, 1), 3),  # mean wait for a decoded frame
+            "prefetch": mode,  # where frames were decoded and features detected ahead (thread / process / none)
             "rss_mb": rss,  # [[frames done, resident MB], ...]
         }
         try:

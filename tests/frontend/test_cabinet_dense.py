@@ -54,8 +54,4 @@ def test_local_ba_helps_with_dense_links(odometry, local_ba):
     assert ate_ba < 0.045, ate_ba
 
 
-def test_default_pipeline_closes_the_loop_under_5cm(shared_data):
-    system, ate = _run(shared_data, [])
-    loops = system.stats()["loops"]
-    assert any(q >= 50 and m <= 5 for q, m, _ in loops), loops  # the circle's end meets its start
-    assert ate < 0.05, ate  # measured 0.036 (0.134 before)
+# The default pipeline (loop closed, ATE < 0.05) on the cabinet: tests/frontend/test_wide_baseline_rgbd.py.
