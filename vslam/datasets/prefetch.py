@@ -65,13 +65,7 @@ def prefetch(items: Iterable[T], depth: int = 4, prepare: Callable[[T], object] 
     stop = threading.Event()
 
     def put(item) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
+        return _put_until_stopped(q, item, stop)
 
     def work() -> None:
         it = iter(items)
@@ -181,7 +175,8 @@ def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
     return "thread"
 
 
-def _child_put(q, item, stop) -> bool:
+def _put_until_stopped(q, item, stop) -> bool:
+    """``q.put(item)``, giving up (False) once ``stop`` is set (a thread or process Event)."""
     while not stop.is_set():
         try:
             q.put(item, timeout=0.1)
@@ -287,7 +282,7 @@ def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, 
             msg = ("frame", frame, result, time.perf_counter() - t0)
             if slots is not None:
                 msg = slots.pack(msg, stop)
-            if msg is None or not _child_put(q, msg, stop):
+            if msg is None or not _put_until_stopped(q, msg, stop):
                 break
         if stop.is_set():  # the consumer stopped: exit without flushing what it will never read
             q.cancel_join_thread()
@@ -299,9 +294,9 @@ def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, 
             from vslam.errors import DatasetError
 
             exc = DatasetError(f"{type(exc).__name__}: {exc}")
-        _child_put(q, ("raise", exc), stop)
+        _put_until_stopped(q, ("raise", exc), stop)
         return
-    _child_put(q, ("end",), stop)
+    _put_until_stopped(q, ("end",), stop)
 
 
 def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = None,
