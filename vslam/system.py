@@ -80,11 +80,12 @@ class System:
         if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense_links)
             self.local_mapper.dense_links = self.tracker.dense_links
         self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
-        # per tracked frame: (timestamp, reference keyframe id or -1, T_ref_cam or T_world_cam)
+        # per tracked frame: timestamp, reference keyframe id or -1, T_world_cam as tracked, and the
+        # reference keyframe's pose at that time (identity without one); see frame_poses
         self._timestamps: list[float] = []
         self._ref: list[int] = []
-        self._T_rel: list[np.ndarray] = []
-        self._T_ref_rec: list[np.ndarray] = []  # the reference keyframe's pose when the frame was recorded
+        self._T_rec: list[np.ndarray] = []
+        self._T_ref_rec: list[np.ndarray] = []
         self._kf_inserted: dict[int, np.ndarray] = {}  # each keyframe's pose at insertion (frame_poses)
         self._n = {"frames": 0, "ok": 0, "lost": 0, "initializing": 0}
         self._t_total = 0.0
@@ -233,12 +234,11 @@ class System:
         kf = self.map.keyframes.get(ref_kf) if ref_kf is not None else None
         if kf is not None:
             self._ref.append(kf.id)
-            self._T_rel.append(inv_T(kf.T_world_cam) @ T_world_cam)
             self._T_ref_rec.append(kf.T_world_cam.copy())
         else:
             self._ref.append(-1)
-            self._T_rel.append(T_world_cam.copy())
             self._T_ref_rec.append(np.eye(4))
+        self._T_rec.append(T_world_cam.copy())
         self._timestamps.append(timestamp)
 
     def finish(self) -> None:
@@ -264,10 +264,10 @@ class System:
 
         if not self._timestamps:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-        T_ref_rec = np.stack(self._T_ref_rec)
         mode = getattr(self._backend_cfg, "frame_correction", "reference")
-        T = frame_poses(np.asarray(self._timestamps), np.asarray(self._ref), T_ref_rec @ np.stack(self._T_rel),
-                        T_ref_rec, self.map.keyframes, self._kf_inserted, interpolate=mode == "interpolate")
+        T = frame_poses(np.asarray(self._timestamps), np.asarray(self._ref), np.stack(self._T_rec),
+                        np.stack(self._T_ref_rec), self.map.keyframes, self._kf_inserted,
+                        interpolate=mode == "interpolate")
         ts = np.asarray(self._timestamps)
         order = np.argsort(ts, kind="stable")
         ts, T = ts[order], T[order]

@@ -24,14 +24,9 @@ import logging
 
 import numpy as np
 
+from vslam.geometry.lie import inv_T
+
 log = logging.getLogger(__name__)
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    Ti = np.eye(4)
-    Ti[:3, :3] = T[:3, :3].T
-    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return Ti
 
 
 def depth_agreement(depth_a: np.ndarray, depth_b: np.ndarray, K: np.ndarray, T_a_b: np.ndarray,
@@ -107,10 +102,10 @@ def align_depth(depth_prev: np.ndarray, depth_cur: np.ndarray, K: np.ndarray, T_
 
     # OpenCV's Rt maps source (previous) points into the destination (current) frame: T_cur_prev
     ok, T_cur_prev = odo.compute2(frame(depth_prev, gray_prev if photometric else None),
-                                  frame(depth_cur, gray_cur if photometric else None), None, _inv(T_prev_cur_guess))
+                                  frame(depth_cur, gray_cur if photometric else None), None, inv_T(T_prev_cur_guess))
     if not ok or T_cur_prev is None or not np.all(np.isfinite(T_cur_prev)):
         return None, 0.0
-    T_prev_cur = _inv(np.asarray(T_cur_prev, float))
+    T_prev_cur = inv_T(np.asarray(T_cur_prev, float))
     agree = depth_agreement(np.nan_to_num(full_prev), np.nan_to_num(full_cur), K_full, T_prev_cur)
     if agree < min_agreement:
         log.debug("depth ICP refused: %.2f of the depths agree", agree)
