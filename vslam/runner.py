@@ -124,7 +124,7 @@ def run_sequence(
     """
     from tqdm import tqdm
 
-    from vslam.datasets.prefetch import choose_prefetch, prefetch, prefetch_process
+    from vslam.datasets.prefetch import PROCESS_HEAD_FRAMES, choose_prefetch, prefetch, prefetch_process
 
     out = Path(output_dir) if output_dir is not None else None
     if out is not None:
@@ -145,7 +145,7 @@ def run_sequence(
     mode = "none" if prefetch_depth <= 0 else choose_prefetch(prefetch_mode, frames, total)
     if mode == "process":
         source = _adopting(system, prefetch_process(frames, getattr(system, "frame_preparer", lambda: None)(),
-                                                    prefetch_depth))
+                                                    prefetch_depth, head=PROCESS_HEAD_FRAMES))
     else:
         source = prefetch(frames, prefetch_depth if mode == "thread" else 0, getattr(system, "prepare", None))
     log.debug("prefetching frames: %s", mode)

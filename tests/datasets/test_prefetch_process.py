@@ -42,6 +42,19 @@ def test_same_frames_in_order_with_the_work_results(tmp_path, make_tum):
     assert _no_children()
 
 
+
+@pytest.mark.parametrize("head", [3, 9, 20])
+def test_head_frames_are_read_here_while_the_child_starts(tmp_path, make_tum, head):
+    root = make_tum(tmp_path / "seq", n=12)
+    ds = open_dataset(root)
+    plain = [(f.index, int(f.image.sum())) for f in ds.frames(2, 11)]
+    got = list(prefetch_process(FrameRange(ds, 2, 11), _image_sum, depth=3, balance=False, head=head))
+    assert [(f.index, int(f.image.sum())) for f, _, _ in got] == plain
+    n_head = min(head, 9)
+    assert [r for _, r, _ in got[:n_head]] == [None] * n_head  # no work done on the head here
+    assert [r for _, r, _ in got[n_head:]] == [p[1] for p in plain[n_head:]]
+    assert _no_children()
+
 def test_corrupt_frame_is_skipped_and_reader_error_arrives_in_order(tmp_path, make_tum):
     root = make_tum(tmp_path / "seq", n=12)
     _rgb(root, 5).write_bytes(b"this is not a png")

@@ -124,6 +124,7 @@ class FrameRange:
 
 PREFETCH_MODES = ("auto", "thread", "process", "none")
 PROCESS_MIN_FRAMES = 150  # below this, starting an interpreter costs more than it saves
+PROCESS_HEAD_FRAMES = 30  # read by the consumer itself while the child starts (~1 s at 30 frames/s)
 
 
 def _main_is_reimportable() -> bool:
@@ -300,9 +301,13 @@ def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, 
 
 
 def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = None,
-                     depth: int = 4, balance: bool = True) -> Iterator[tuple[Any, Any, float]]:
+                     depth: int = 4, balance: bool = True, head: int = 0) -> Iterator[tuple[Any, Any, float]]:
     """Yield ``(frame, work(frame), seconds of work)`` for the frames of ``source``, read and
     worked on ahead in a child process (at most ``depth`` waiting).
+
+    The first ``head`` frames are read here instead, with no work done on them (result None), while
+    the child starts (a new interpreter takes about a second, in which the consumer would
+    otherwise idle); the child begins at the frame after them.
 
     With ``balance``, ``work`` is skipped (result None) for a frame the consumer is already
     waiting for (a shared flag it sets while blocked on an empty queue): the consumer then does
@@ -320,16 +325,38 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
 
     from vslam.errors import DatasetError
 
+    head = max(0, min(int(head), len(source)))
+    rest = FrameRange(source.dataset, source.start + head, source.stop)
+    if len(rest) == 0:
+        for frame in source:
+            yield frame, None, 0.0
+        return
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue(maxsize=max(1, depth))
     stop = ctx.Event()
     waiting = ctx.RawValue("b", 0) if balance else None
-    size = _slot_bytes(source)
+    size = _slot_bytes(rest)
     slots = _Slots(ctx, max(1, depth) + 2, size) if size else None
-    proc = ctx.Process(target=_child_main, args=(source, work, q, stop, waiting, slots), name="vslam-prefetch",
+    proc = ctx.Process(target=_child_main, args=(rest, work, q, stop, waiting, slots), name="vslam-prefetch",
                        daemon=True)
-    proc.start()
+    # start() blocks until the child has read its arguments: in a thread, while the head is read here
+    start_error: list[BaseException] = []
+
+    def start() -> None:
+        try:
+            proc.start()
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the consumer
+            start_error.append(exc)
+
+    starter = threading.Thread(target=start, name="vslam-prefetch-start", daemon=True)
+    starter.start()
     try:
+        if head:
+            for frame in source.dataset.frames(source.start, rest.start):
+                yield frame, None, 0.0
+        starter.join()
+        if start_error:
+            raise start_error[0]
         while True:
             if waiting is not None and q.empty():
                 waiting.value = 1
@@ -357,7 +384,9 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
             yield msg[1], msg[2], msg[3]
     finally:
         stop.set()
-        proc.join(timeout=3.0)
+        starter.join()
+        if proc.pid is not None:
+            proc.join(timeout=3.0)
         if proc.is_alive():
             proc.terminate()
             proc.join(timeout=2.0)

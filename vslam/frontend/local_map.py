@@ -38,13 +38,15 @@ def project_local_points(
     u = camera.fx * Xc[:, 0] / zs + camera.cx
     v = camera.fy * Xc[:, 1] / zs + camera.cy
     ok &= (u >= margin) & (u <= camera.width - 1 - margin) & (v >= margin) & (v <= camera.height - 1 - margin)
-    if check_distance:
+    if check_distance:  # on the points inside the image only
+        sel = np.flatnonzero(ok)
+        ids_in = ids[sel]
         centre = -R.T @ t
-        d = X - centre
+        d = X[sel] - centre
         dist = np.linalg.norm(d, axis=1)
-        ok &= (dist >= 0.8 * points.min_distance[ids]) & (dist <= 1.2 * points.max_distance[ids])
-        cosang = np.einsum("ij,ij->i", d, points.normal[ids]) / np.maximum(dist, 1e-12)
-        ok &= cosang >= max_view_angle_cos
+        good = (dist >= 0.8 * points.min_distance[ids_in]) & (dist <= 1.2 * points.max_distance[ids_in])
+        cosang = np.einsum("ij,ij->i", d, points.normal[ids_in]) / np.maximum(dist, 1e-12)
+        ok[sel] = good & (cosang >= max_view_angle_cos)
     return ids[ok], np.stack([u[ok], v[ok]], axis=1), z[ok]
 
 
@@ -98,32 +100,26 @@ def guided_match(
     _, idx = tree.query(proj_uv, k=k, distance_upper_bound=radius)
     idx = idx.reshape(len(proj_uv), k)
     valid = idx < len(kp_uv)
-    rows, cols = np.nonzero(valid)
-    cand = idx[rows, cols]
     if kp_free is not None:
-        keep = kp_free[cand]
-        rows, cand = rows[keep], cand[keep]
+        valid &= kp_free[np.where(valid, idx, 0)]
+    rows, cols = np.nonzero(valid)
     if len(rows) == 0:
         return empty
-    # distances of the candidate pairs only, then best and second best per map point by one sort
-    d = descriptor_distance(map_desc[rows], kp_desc[cand], binary)
-    order = _sort_pairs(rows, d)
-    rows, cand, d = rows[order], cand[order], d[order]
-    first = np.ones(len(rows), dtype=bool)
-    first[1:] = rows[1:] != rows[:-1]
-    pos = np.flatnonzero(first)
-    nxt = np.minimum(pos + 1, len(rows) - 1)
-    has2 = (pos + 1 < len(rows)) & (rows[nxt] == rows[pos])
-    best = d[pos]
-    second = np.where(has2, d[nxt], np.inf)
-    ok = np.ones(len(pos), dtype=bool)
+    # descriptor distances of the candidate pairs only, in a (projections, k) table (inf: none);
+    # best and second best per map point without a sort (ties: the nearer keypoint, as kd order)
+    D = np.full((len(proj_uv), k), np.inf, dtype=np.float32)
+    D[rows, cols] = descriptor_distance(map_desc[rows], kp_desc[idx[rows, cols]], binary)
+    j = np.argmin(D, axis=1)
+    best = D[np.arange(len(proj_uv)), j]
+    second = np.partition(D, 1, axis=1)[:, 1] if k > 1 else np.full(len(proj_uv), np.inf, np.float32)
+    ok = np.isfinite(best)
     if max_distance is not None:
         ok &= best <= max_distance
     if ratio < 1.0:
         ok &= best < ratio * second
-    m_idx = rows[pos][ok]
-    kp_idx = cand[pos][ok]
-    d = best[ok]
+    m_idx = np.flatnonzero(ok)
+    kp_idx = idx[m_idx, j[m_idx]]
+    d = best[m_idx]
     # one map point per keypoint: keep the smallest distance
     o = _sort_pairs(kp_idx, d)
     m_idx, kp_idx, d = m_idx[o], kp_idx[o], d[o]

@@ -40,8 +40,8 @@ def pnp_ransac(
     reproj_px: float = 3.0,
     iterations: int = 100,
 ) -> tuple[np.ndarray | None, np.ndarray]:
-    """RANSAC PnP (P3P/EPnP minimal solvers, OpenCV) on undistorted pixels; returns
-    ``(T_cam_world or None, inlier mask)``."""
+    """PnP on undistorted pixels (:func:`vslam.geometry.pnp.solve_pnp`: LM from the guess when it
+    explains enough points, else RANSAC with P3P); returns ``(T_cam_world or None, inlier mask)``."""
     n = len(X_world)
     mask = np.zeros(n, dtype=bool)
     if n < 6:
@@ -55,20 +55,27 @@ def pnp_ransac(
         return np.asarray(T, dtype=float), np.asarray(m, dtype=bool)
     except GeometryError:
         return None, mask
-    use_guess = T_cam_world_guess is not None
-    rvec = tvec = None
-    if use_guess:
-        rvec, _ = cv2.Rodrigues(T_cam_world_guess[:3, :3])
-        tvec = T_cam_world_guess[:3, 3].reshape(3, 1).copy()
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X_world.astype(np.float64), uv.astype(np.float64), K, None, rvec, tvec,
-        useExtrinsicGuess=use_guess, iterationsCount=iterations, reprojectionError=reproj_px,
-        confidence=0.999, flags=cv2.SOLVEPNP_EPNP if not use_guess else cv2.SOLVEPNP_ITERATIVE,
-    )
-    if not ok or inl is None or len(inl) < 6:
-        return None, mask
-    mask[inl.ravel()] = True
-    return make_T(_so3_exp(rvec), tvec), mask
+
+
+def _horizontal_rows(out: np.ndarray, a: np.ndarray, b: np.ndarray, x, y, z) -> None:
+    """``out (6, n)`` = d(u)/d(xi) of ``u = fx x / z + cx`` (or ``u_r = u - bf / z``) for
+    ``T <- exp(xi) T``: ``d(u)/d(Xc) [I, -[Xc]x]`` with ``a = du/dx``, ``b = du/dz`` (weighted)."""
+    out[0] = a
+    out[1] = 0.0
+    out[2] = b
+    np.multiply(b, y, out=out[3])
+    np.subtract(a * z, b * x, out=out[4])
+    np.multiply(-a, y, out=out[5])
+
+
+def _vertical_rows(out: np.ndarray, c: np.ndarray, d: np.ndarray, x, y, z) -> None:
+    """``out (6, n)`` = d(v)/d(xi) of ``v = fy y / z + cy``, ``c = dv/dy``, ``d = dv/dz`` (weighted)."""
+    out[0] = 0.0
+    out[1] = c
+    out[2] = d
+    np.subtract(d * y, c * z, out=out[3])
+    np.multiply(-d, x, out=out[4])
+    np.multiply(c, x, out=out[5])
 
 
 def refine_pose(
@@ -87,6 +94,9 @@ def refine_pose(
     stereo/RGB-D pose optimization, Mur-Artal & Tardos 2017, eq. (2)-(3)). Outliers are reclassified
     each round by the chi-square test. Left perturbation ``T <- exp(xi) T``, ``xi = (rho, phi)``.
 
+    The Jacobian rows of all residuals fill one ``(6, 3n)`` array in place, so the normal
+    equations are one BLAS product per iteration.
+
     Returns ``(T_cam_world, inlier mask)``.
     """
     n = len(X_world)
@@ -95,45 +105,48 @@ def refine_pose(
     info = np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2
     has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
     ur = np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0)
+    delta = np.where(has_r, np.sqrt(CHI2_3DOF), np.sqrt(CHI2_2DOF))
+    chi2 = np.where(has_r, CHI2_3DOF, CHI2_2DOF)
+    Xt = np.ascontiguousarray(np.asarray(X_world, float).T)  # (3, n): rows x, y, z
+    u_obs = np.ascontiguousarray(uv[:, 0], dtype=float)
+    v_obs = np.ascontiguousarray(uv[:, 1], dtype=float)
+    any_r = bool(has_r.any())
+    m = 3 if any_r else 2
+    A = np.empty((6, m * n))  # rows: d(residual)/d(xi_k), residuals u_1..u_n, v_1..v_n[, ur_1..ur_n]
+    r = np.empty(m * n)
     inl = np.ones(n, dtype=bool)
-    zero = np.zeros(n)
-    delta_mono, delta_st = np.sqrt(CHI2_2DOF), np.sqrt(CHI2_3DOF)
-    for rnd in range(rounds):
+
+    def project(T):
+        Xc = T[:3, :3] @ Xt + T[:3, 3:4]
+        z = np.maximum(Xc[2], 1e-6)
+        iz = 1.0 / z
+        return Xc, z, iz, fx * Xc[0] * iz + cx, fy * Xc[1] * iz + cy
+
+    for _ in range(rounds):
         for _ in range(iterations):
-            Xc = X_world @ T[:3, :3].T + T[:3, 3]
-            x, y, z = Xc[:, 0], Xc[:, 1], np.maximum(Xc[:, 2], 1e-6)
-            iz = 1.0 / z
-            u_hat = fx * x * iz + cx
-            v_hat = fy * y * iz + cy
-            ru = u_hat - uv[:, 0]
-            rv = v_hat - uv[:, 1]
+            Xc, z, iz, u_hat, v_hat = project(T)
+            x, y = Xc[0], Xc[1]
+            ru = u_hat - u_obs
+            rv = v_hat - v_obs
             rs = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
-            # J = d(u, v, u_r)/d(xi) for T <- exp(xi) T: d(proj)/dXc @ [I, -[Xc]x], written out;
-            # stored transposed (6, 3, n) so that H = J^T W J is a single BLAS product
-            a = fx * iz
-            b = -fx * x * iz * iz
-            c = fy * iz
-            d = -fy * y * iz * iz
-            b2 = b + bf * iz * iz
-            e2 = info * (ru * ru + rv * rv + rs * rs)
-            delta = np.where(has_r, delta_st, delta_mono)
-            e = np.sqrt(e2)
+            e = np.sqrt(info * (ru * ru + rv * rv + rs * rs))
             w = info * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
-            w = np.where(inl & (Xc[:, 2] > 0), w, 0.0)
+            w[~(inl & (Xc[2] > 0))] = 0.0
             sw = np.sqrt(w)
-            swr = sw * has_r
-            az = a * z
-            J = np.empty((6, 3, n))
-            J[:, 0] = (a, zero, b, b * y, az - b * x, -a * y)
-            J[:, 1] = (zero, c, d, -c * z + d * y, -d * x, c * x)
-            J[:, 2] = (a, zero, b2, b2 * y, az - b2 * x, -a * y)
-            J[:, 0] *= sw
-            J[:, 1] *= sw
-            J[:, 2] *= swr
-            Jr = J.reshape(6, -1)  # (6, 3n), residual order (u_1..u_n, v_1..v_n, ur_1..ur_n)
-            rr = np.concatenate([ru * sw, rv * sw, rs * swr])
-            H = Jr @ Jr.T
-            g = Jr @ rr
+            a = fx * iz * sw
+            c = fy * iz * sw
+            b = -fx * x * iz * iz * sw
+            d = -fy * y * iz * iz * sw
+            _horizontal_rows(A[:, :n], a, b, x, y, z)
+            _vertical_rows(A[:, n:2 * n], c, d, x, y, z)
+            r[:n] = ru * sw
+            r[n:2 * n] = rv * sw
+            if any_r:
+                swr = sw * has_r
+                _horizontal_rows(A[:, 2 * n:], fx * iz * swr, (-fx * x * iz * iz + bf * iz * iz) * swr, x, y, z)
+                r[2 * n:] = rs * swr
+            H = A @ A.T
+            g = A @ r
             try:
                 dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:
@@ -144,14 +157,11 @@ def refine_pose(
             T = dT @ T
             if np.linalg.norm(dx) < 1e-5:
                 break
-        Xc = X_world @ T[:3, :3].T + T[:3, 3]
-        z = np.maximum(Xc[:, 2], 1e-6)
-        u_hat = fx * Xc[:, 0] / z + cx
-        v_hat = fy * Xc[:, 1] / z + cy
-        e2 = (u_hat - uv[:, 0]) ** 2 + (v_hat - uv[:, 1]) ** 2
+        Xc, z, iz, u_hat, v_hat = project(T)
+        e2 = (u_hat - u_obs) ** 2 + (v_hat - v_obs) ** 2
         e2 += np.where(has_r, ((u_hat - bf / z) - ur) ** 2, 0.0)
         e2 *= info
-        inl = (e2 < np.where(has_r, CHI2_3DOF, CHI2_2DOF)) & (Xc[:, 2] > 0)
+        inl = (e2 < chi2) & (Xc[2] > 0)
         if inl.sum() < 6:
             break
     return T, inl

@@ -41,6 +41,7 @@ from vslam.frontend.pose import (
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
+from vslam.map.mappoint import unique_ids
 
 log = logging.getLogger(__name__)
 
@@ -669,8 +670,7 @@ class Tracker:
             first_ids = obs.point_ids.copy()
             inl = np.ones(int((first_ids >= 0).sum()), bool)
             kept = obs.point_ids[obs.point_ids >= 0]
-            rest = np.union1d(local_ids, first) if len(first) else local_ids
-            rest = rest[~np.isin(rest, kept)]
+            rest = unique_ids(len(pts), local_ids, first, exclude=kept)
             vis_ids, proj, _ = project_local_points(pts, rest, T_cw, self.camera)
             free = obs.point_ids < 0
             m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.pnp_reproj_px * 1.5), tree, free)

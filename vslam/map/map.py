@@ -10,7 +10,7 @@ import logging
 import numpy as np
 
 from vslam.map.keyframe import KeyFrame
-from vslam.map.mappoint import MapPoint, MapPointStore
+from vslam.map.mappoint import MapPoint, MapPointStore, unique_ids
 
 log = logging.getLogger(__name__)
 
@@ -45,14 +45,16 @@ class Map:
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
         """Recompute ``kf_id``'s links: one vectorized pass over every keyframe's observations."""
         kf = self.keyframes[kf_id]
-        ids = np.unique(kf.observed_ids())
+        ids = unique_ids(len(self.points), kf.observed_ids())
         links = self.covisibility.setdefault(kf_id, {})
         others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
         if not others or len(ids) == 0:
             return
         obs = [o.observed_ids() for o in others]
         owner = np.repeat(np.arange(len(others)), [len(a) for a in obs])
-        shared = np.isin(np.concatenate(obs), ids)
+        mine = np.zeros(len(self.points), dtype=bool)
+        mine[ids] = True
+        shared = mine[np.concatenate(obs)]
         weights = np.bincount(owner[shared], minlength=len(others))
         for j in np.flatnonzero(weights >= min_weight):
             w = int(weights[j])
@@ -73,8 +75,7 @@ class Map:
         """Unique alive map points observed by the given keyframes."""
         if not kf_ids:
             return np.zeros(0, dtype=np.int64)
-        ids = np.concatenate([self.keyframes[k].observed_ids() for k in kf_ids])
-        ids = np.unique(ids)
+        ids = unique_ids(len(self.points), *[self.keyframes[k].observed_ids() for k in kf_ids])
         return ids[self.points.alive[ids]]
 
     # ------------------------------------------------------------------ points
