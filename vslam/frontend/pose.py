@@ -39,6 +39,7 @@ def pnp_ransac(
     T_cam_world_guess: np.ndarray | None = None,
     reproj_px: float = 3.0,
     iterations: int = 100,
+    refine_rounds: int = 2,
 ) -> tuple[np.ndarray | None, np.ndarray]:
     """PnP on undistorted pixels (:func:`vslam.geometry.pnp.solve_pnp`: LM from the guess when it
     explains enough points, else RANSAC with P3P); returns ``(T_cam_world or None, inlier mask)``."""
@@ -51,7 +52,7 @@ def pnp_ransac(
 
     try:
         T, m = solve_pnp(X_world, uv, K, T_cam_world_init=T_cam_world_guess, threshold_px=reproj_px,
-                         max_iters=iterations)
+                         max_iters=iterations, refine_rounds=refine_rounds)
         return np.asarray(T, dtype=float), np.asarray(m, dtype=bool)
     except GeometryError:
         return None, mask

@@ -751,7 +751,10 @@ class Tracker:
             if refine_only or inl.sum() >= max(cfg.min_inliers, 0.6 * len(sel)):
                 return T_cw, inl
         if True:
-            T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations)
+            # a first-pass pose only places the second association pass (gate 4.5 px), which a
+            # refinement with all residuals follows: one LM round on its inliers is enough there
+            T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations,
+                                 refine_rounds=2 if final else 1)
             if T_cw is None:
                 return None, np.zeros(len(sel), bool)
             if not final:  # a refinement with all residuals follows the second association pass

@@ -84,6 +84,7 @@ def solve_pnp(
     T_cam_world_init: np.ndarray | None = None, threshold_px: float = 2.0,
     confidence: float = 0.999, max_iters: int = 300, min_inliers: int = 6,
     method: Literal["p3p", "ap3p", "epnp", "sqpnp"] = "p3p", init_gate: float = 3.0,
+    refine_rounds: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``T_cam_world`` from world points and their pixels: RANSAC + Levenberg-Marquardt.
 
@@ -134,7 +135,7 @@ def solve_pnp(
         gate, _ = _reproj_inliers(T0, K, X, x, d, init_gate * threshold_px)
         if gate.sum() >= need:
             T, mask = _refine_lm(T0, K, X, x, d, init_gate * threshold_px, rounds=1)
-            T, mask = _refine_lm(T, K, X, x, d, threshold_px)
+            T, mask = _refine_lm(T, K, X, x, d, threshold_px, rounds=refine_rounds)
             if mask.sum() >= max(need, 0.5 * n):
                 return T, mask
         log.debug("solve_pnp: the initial guess explains too few points; running RANSAC")
