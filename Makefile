@@ -24,7 +24,7 @@ demo: $(VENV)/.installed
 	$(VENV)/bin/vslam demo --output demo_output
 
 test: $(VENV)/.installed-test
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q --durations=10
 
 clean:
 	rm -rf $(VENV) demo_output

@@ -57,7 +57,7 @@ def test_local_ba_lowers_ate_on_synthetic_rgbd():
     ate_base, ate_ba = _ate(base.trajectory(), gt), _ate(ba.trajectory(), gt)
     assert len(ba.trajectory()) == len(gt)
     assert ate_base > 0.012  # measured 0.0180
-    assert ate_ba < 0.0055  # measured 0.0048 (0.0067 with rigid frames; 0.0040 with rgbd_residual="disparity")
+    assert ate_ba < 0.0055  # measured 0.0042 (u_right residual 0.0049, 0.0067 with rigid frames; disparity scale 1 0.0040)
     assert ate_ba < 0.6 * ate_base
     st = ba.stats()
     assert st["backend"]["local_ba_calls"] == st["keyframes"] >= 5
@@ -67,17 +67,19 @@ def test_local_ba_lowers_ate_on_synthetic_rgbd():
 
 def test_local_ba_helps_from_the_second_keyframe_on_synthetic_rgbd():
     """The first 9 and 15 frames (2 and 3 keyframes), exact ground truth, ATE mm: odometry 2.82 / 3.47,
-    local BA with the disparity residual for the depth 2.42 / 2.82. With ORB-SLAM2's u_right residual
-    (the default, see LocalBAConfig; errors on u and on u_right independent: u counted twice, the depth
+    local BA with the disparity residual for the depth (``disparity_sigma_scale`` 1) 2.42 / 2.82. With
+    ORB-SLAM2's u_right residual (errors on u and on u_right independent: u counted twice, the depth
     error tied to u's) the BA of the second keyframe moved it from 7.3 to 24 mm error (Mahalanobis^2 67
     under its own covariance) and the ATE is 6.7 / 4.9 mm (11.5 / 6.3 with rigid frames); with the
-    disparity residual that keyframe is at 6.2 mm."""
+    disparity residual that keyframe is at 6.2 mm. The default (disparity, scale sqrt 2: u_right's
+    depth weight, for real sensors' unregistered depth) gives 3.68 / 3.50 here (30 / 60 frames: 2.97 /
+    4.20, odometry 4.66 / 18.1): the synthetic depth is as exact as the pixels."""
     from vslam.backend.config import LocalBAConfig
 
     _, _, gt = _sequence()
     for n, measured in ((9, 0.00242), (15, 0.00282)):
         odo, _ = _run(BackendConfig(local_ba=False), n)
-        ba, _ = _run(BackendConfig(local=LocalBAConfig(rgbd_residual="disparity")), n)
+        ba, _ = _run(BackendConfig(local=LocalBAConfig(rgbd_residual="disparity", disparity_sigma_scale=1.0)), n)
         ate_odo, ate_ba = _ate(odo.trajectory(), gt), _ate(ba.trajectory(), gt)
         assert ate_ba < ate_odo - 0.0003, (n, ate_odo, ate_ba)
         assert ate_ba < measured + 0.0004, (n, ate_ba)
@@ -324,7 +326,8 @@ def test_depthless_low_parallax_points_stay_out_of_stereo_ba(shared_data, monkey
 @pytest.mark.shared
 def test_fr1_desk_local_ba_with_disparity_residual_beats_odometry(shared_data):
     """TUM fr1/desk, 9 frames (3 keyframes), SE(3) ATE: odometry 4.47 mm; local BA with the u_right
-    RGB-D residual (the default) 4.63 mm, with the disparity residual 4.19 mm (both with interpolated
+    RGB-D residual (the default before issue 5) 4.63 mm, with the disparity residual 4.19 mm (scale 1;
+    the default scale sqrt 2: 4.20, re-measured at issue 5 4.39 -> 4.13, u_right 4.4) (all with interpolated
     frames; 4.68 mm before, with rigid frames). The clip's ground truth is noisy at this level (per
     frame-pair RPE 3-8 mm, depth 14 ms after colour), so the margin is small."""
     from vslam.backend.config import LocalBAConfig
@@ -342,9 +345,9 @@ def test_fr1_desk_local_ba_with_disparity_residual_beats_odometry(shared_data):
         return _ate(traj, ds.ground_truth())
 
     ate_odo = ate(BackendConfig(local_ba=False))
-    ate_ba = ate(BackendConfig(local=LocalBAConfig(rgbd_residual="disparity")))
-    assert ate_ba < ate_odo - 0.0001, (ate_odo, ate_ba)
-    assert ate_ba < 0.0045, ate_ba  # measured 0.00419
+    ate_ba = ate(BackendConfig(local=LocalBAConfig(rgbd_residual="disparity")))  # the default residual
+    assert ate_ba < ate_odo - 0.0001, (ate_odo, ate_ba)  # bench: 0.00439 -> 0.00413 (u_right ~0.0044)
+    assert ate_ba < 0.0045, ate_ba
 
 
 def test_max_parallax_deg():

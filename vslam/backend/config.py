@@ -41,18 +41,18 @@ class LocalBAConfig:
             u_right moved it from 7.3 mm error (odometry) to 24.2 mm (Mahalanobis^2 67 under the
             problem's own covariance, i.e. a modelling error), disparity to 6.2 mm; synthetic ATE
             (9 / 15 / 60 frames, odometry 2.82 / 3.47 / 18.0 mm) 6.70 / 4.93 / 4.79 -> 2.42 / 2.82 /
-            4.04 mm; TUM fr1/desk 9 frames 4.63 -> 4.19 mm (odometry 4.47); fr3/cabinet 58 keyframes
-            without ``frontend.dense_links`` 74.6 -> 37.7 mm. The default stays ``u_right`` because
-            the dense links (virtual correspondences, :mod:`vslam.backend.dense_links`) are weighted
-            for it: cabinet with links 24 mm, 300 mm with ``disparity`` (tracking broke at keyframes
-            47-50), 31 mm with ``disparity`` on the features only. Stereo: KITTI 06 (the right column
-            comes from patch matching, so ``disparity`` would be the physical model) local BA 0.0557
-            -> 0.066 m with ``disparity``, 0.062 with ``sigma_d = sqrt 2 sigma``.
-            Re-measured at 7d91f26 (ATE m, loop off unless said; bit-identical on repeat), u_right /
-            disparity: fr1/desk 9 0.00463 / 0.00419 (odometry 0.00447); cabinet 0.0280 / 0.0245
-            (odometry 0.0381), with loop 0.0357 / 0.0282 (the links no longer break it); 7-Scenes
-            0.0471 / 0.0501 although the 30-frame relative error is lower (0.0332 / 0.0327 m): the ATE
-            gap is slow drift, and it misses the < 0.05 target, so the default stays ``u_right``.
+            4.04 mm. Stereo: KITTI 06 (the right column comes from patch matching, so ``disparity``
+            would be the physical model) local BA 0.0557 -> 0.066 m with ``disparity``, 0.062 with
+            ``sigma_d = sqrt 2 sigma``: the stereo default stays ``u_right``.
+            RGB-D default (issue 5): ``disparity`` with ``disparity_sigma_scale = sqrt 2``, the depth
+            weight of u_right (whose marginal disparity std is ``sqrt 2 sigma``) without its
+            double-counted ``u``. ATE m, u_right -> default, loop off: fr1/desk 9 0.00463 -> 0.00420
+            (odometry 0.00447: only this model makes BA help there); cabinet 0.0280 -> 0.0268;
+            7-Scenes 0.0471 -> 0.0476 (0.0470 at 975f2d3). With loop closing (the default pipeline):
+            cabinet 0.0357 -> 0.0322 (the loop's RANSAC pose refined on reprojection, no global BA
+            after a weak loop: see ``ClosingConfig.refine_ransac_pose`` / ``global_ba_weak_loops``;
+            u_right with those 0.0259); 7-Scenes 0.0425 -> 0.0440 (0.0433 at 975f2d3). Scale 1 (disparity std ``sigma``) trusts depth more: fr1 0.00419, cabinet 0.0245,
+            7-Scenes 0.0501 (> 0.05).
         disparity_sigma_scale: std of the disparity residual in units of the keypoint's ``sigma``
             (``disparity`` residuals only; 1 = the same as ``u``, ``v``). A depth sensor's disparity
             noise is far below a pixel (Kinect ``sigma_z ~ 1.4e-3 z^2`` m is ``~0.06`` px of virtual
@@ -77,9 +77,9 @@ class LocalBAConfig:
     chi2_mono: float = 5.991
     chi2_stereo: float = 7.815
     rgbd_virtual_baseline: float = RGBD_VIRTUAL_BASELINE  # the tracker's and loop closer's
-    rgbd_residual: str = "u_right"
+    rgbd_residual: str = "disparity"
     stereo_residual: str = "u_right"
-    disparity_sigma_scale: float = 1.0
+    disparity_sigma_scale: float = math.sqrt(2.0)
     solver: str = "schur"
     lambda_initial: float = 1e-4
     relative_tolerance: float = 1e-4

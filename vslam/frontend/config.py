@@ -35,7 +35,7 @@ class FrontendConfig:
     # --- pose estimation
     pnp_reproj_px: float = 3.0  # RANSAC / inlier threshold in pixels
     pnp_iterations: int = 100
-    pose_from_prediction: bool = False  # skip RANSAC PnP when the robust refinement from the motion prediction holds
+    pose_from_prediction: bool = False  # skip PnP (LM from the prediction, RANSAC) when the robust refinement from the prediction holds; 7-Scenes odometry ATE 0.32 vs 0.055 m: fast motions mislead it
     align_inlier_m: float = 0.03  # 3D-3D RANSAC threshold at 1 m depth (scaled with depth^2 for RGB-D noise)
     min_inliers: int = 20  # fewer inliers than this means the frame is lost
     essential_px: float = 1.0  # 2D-2D RANSAC threshold in pixels

@@ -13,10 +13,12 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
    to the map points of the candidate and its covisible keyframes and (RGB-D / stereo) to those
    keyframes' keypoints with depth, keyframe by keyframe; RANSAC estimates the query's
    pose in the candidate's world, SE(3) from depth (RGB-D, stereo) or Sim(3) from the query's own
-   map points (monocular, where scale drifts); guided matching by projection and robust pose
+   map points (monocular, where scale drifts), refined on its inliers' reprojection errors
+   (``closing.refine_ransac_pose``); guided matching by projection and robust pose
    refinement give the final inliers, at least ``closing.min_inliers`` to accept; or (RGB-D) at
    least ``closing.confirm_min_inliers`` RANSAC inliers and a connected keyframe of the query,
-   verified against the same candidates, agreeing on the correction (:meth:`LoopCloser._confirmed`).
+   verified against the same candidates, agreeing on the correction, and at least
+   ``closing.confirm_min_map_inliers`` map-point inliers (:meth:`LoopCloser._confirmed`).
 3. **Correct.** The matched duplicate points are fused (the candidate side's point survives, the
    query keyframes' observations are remapped), and the candidate's points are projected into the
    query's covisible keyframes and fused too (ORB-SLAM's SearchAndFuse). The essential graph
@@ -24,7 +26,8 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
    ``covisibility_edge_weight``; the loop links) is optimized with
    :func:`vslam.backend.optimize_pose_graph` (SE(3); Sim(3) for monocular) with the segment's first
    keyframe and the loop keyframe fixed; every map point moves with its reference (first) keyframe
-   (:func:`vslam.backend.correct_points`); then an optional global BA.
+   (:func:`vslam.backend.correct_points`); then an optional global BA (not after a loop accepted by
+   confirmation unless ``closing.global_ba_weak_loops``: its few observations do not hold the loop).
 
 Modes (``backend.mode``, shared with local mapping):
 
@@ -239,7 +242,9 @@ class LoopCloser:
                  len(prepared.edges), result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
         with self.lock:
             record = self._apply_correction(prepared, result)
-        if self.config.closing.global_ba and self.global_ba is not None:
+        cc = self.config.closing
+        strong = prepared.ver.n_inliers >= (cc.min_inliers_mono if self.sensor == "mono" else cc.min_inliers)
+        if cc.global_ba and self.global_ba is not None and (strong or cc.global_ba_weak_loops):
             t_ba = time.perf_counter()
             self.global_ba()
             log.info("global BA after the loop: %.0f ms", 1e3 * (time.perf_counter() - t_ba))
@@ -317,7 +322,7 @@ class LoopCloser:
                       ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
                       align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
                       search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                      seed=kf.id, **ex)
+                      seed=kf.id, refine_ransac=cc.refine_ransac_pose, **ex)
 
     def _verify(self, kf: KeyFrame, match_id: int, single: bool = False) -> Verified | str | None:
         """Verify the candidate; accepted with ``min_inliers`` map-point inliers, or when
@@ -365,7 +370,7 @@ class LoopCloser:
         cc = self.config.closing
         if cc.confirm_min_keyframes <= 0 or self.sensor != "rgbd":
             return False
-        if max(ver.n_inliers, ver.n_ransac) < cc.confirm_min_inliers:
+        if max(ver.n_inliers, ver.n_ransac) < cc.confirm_min_inliers or ver.n_inliers < cc.confirm_min_map_inliers:
             return False
         T_cam_world_q = inv_T(ver.T_world_cam)  # the query's corrected pose
         agree = 0
