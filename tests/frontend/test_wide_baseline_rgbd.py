@@ -39,7 +39,7 @@ def test_cabinet_ate(cabinet_run):
     res = evaluate_trajectories(system.trajectory(), ds.ground_truth(), max_diff=0.02)
     assert res.matched_poses == 58
     # issue 6: the default pipeline (dense RGB-D refinement, local BA with dense links, the loop
-    # closed) under 5 cm; measured 0.036 m (0.166 with no loop closed, 0.134 with the loop before
+    # closed) under 5 cm; measured 0.032 m (0.166 with no loop closed, 0.134 with the loop before
     # the dense refinement)
     assert res.ate.rmse < 0.05, res.ate.rmse
     loops = system.stats()["loops"]
