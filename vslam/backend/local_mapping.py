@@ -50,6 +50,7 @@ from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
 from vslam.keyframe_queue import KeyframeQueue
 from vslam.map.keyframe import KeyFrame
+from vslam.map.mappoint import unique_ids
 from vslam.map.map import Map
 
 LOG = logging.getLogger(__name__)
@@ -335,7 +336,7 @@ class LocalMapper:
         n_fused = self._fuse_into(kf, pts, remap)
         # new keyframe's points -> each neighbour
         own = kf.observed_ids()
-        own = np.unique(own[store.alive[own]])
+        own = unique_ids(len(store), own[store.alive[own]])
         for nb in neighbours:
             n_fused += self._fuse_into(nb, own, remap)
         if n_fused:
@@ -357,13 +358,14 @@ class LocalMapper:
         pts = pts[store.alive[pts]]
         if len(pts) == 0 or len(kf.uv_undist) == 0:
             return 0
-        pts = np.setdiff1d(pts, kf.point_ids[kf.point_ids >= 0])
+        pts = unique_ids(len(store), pts, exclude=kf.point_ids[kf.point_ids >= 0])
         vis, uv, z = project_local_points(store, pts, kf.T_cam_world, self.camera)
         if len(vis) == 0:
             return 0
         binary = kf.descriptors.dtype == np.uint8
         m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fuse_radius_px,
-                               binary, self.config.fuse_max_descriptor_distance if binary else None, ratio=1.0)
+                               binary, self.config.fuse_max_descriptor_distance if binary else None, ratio=1.0,
+                               kp_tree=kf.keypoint_tree())
         if len(m) == 0:
             return 0
         p, kp, zp = vis[m], k, z[m]

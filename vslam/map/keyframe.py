@@ -51,3 +51,14 @@ class KeyFrame:
 
     def observed_ids(self) -> np.ndarray:
         return self.point_ids[self.point_ids >= 0]
+
+    def keypoint_tree(self):
+        """A kd-tree (``scipy.spatial.cKDTree``) of ``uv_undist`` for guided matching into this
+        keyframe, built on first use and kept (not a field: never saved with the map)."""
+        tree = self.__dict__.get("_keypoint_tree")
+        if tree is None or tree.n != len(self.uv_undist):
+            from scipy.spatial import cKDTree
+
+            tree = cKDTree(self.uv_undist)
+            self.__dict__["_keypoint_tree"] = tree
+        return tree
