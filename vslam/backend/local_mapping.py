@@ -560,16 +560,20 @@ class LocalMapper:
             c = self.map.keyframes.get(cid)
             if c is None or c.bad or c.id == first or c.id in recent or c.segment != kf.segment:
                 continue
-            ids = np.unique(c.observed_ids())
+            ids = unique_ids(len(store), c.observed_ids())
             ids = ids[store.alive[ids]]
             if len(ids) == 0:
                 continue
             seen = np.zeros(len(ids), np.int64)
+            in_o = np.zeros(len(store), dtype=bool)  # per other keyframe: which points it observes
             for oid in self.map.covisibility.get(cid, {}):
                 o = self.map.keyframes.get(oid)
                 if o is None or o.bad or o.id == cid:
                     continue
-                seen += np.isin(ids, o.point_ids)
+                obs = o.observed_ids()
+                in_o[obs] = True
+                seen += in_o[ids]
+                in_o[obs] = False
             if np.mean(seen >= 3) >= self.config.redundant_ratio:
                 self._set_bad(c)
 
