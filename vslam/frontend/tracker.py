@@ -750,16 +750,15 @@ class Tracker:
             T_cw, inl = refine_pose(T_cw_guess, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
             if refine_only or inl.sum() >= max(cfg.min_inliers, 0.6 * len(sel)):
                 return T_cw, inl
-        if True:
-            # with depth, a first-pass pose only places the second association pass (gate 4.5 px),
-            # which a refinement with the depth residuals follows: one LM round on its inliers is
-            # enough there (monocular KITTI 07 odometry drifts more with it: 1.16 vs < 1 m)
-            T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations,
-                                 refine_rounds=1 if not final and self.sensor != "mono" else 2)
-            if T_cw is None:
-                return None, np.zeros(len(sel), bool)
-            if not final:  # a refinement with all residuals follows the second association pass
-                return T_cw, m
+        # with depth, a first-pass pose only places the second association pass (gate 4.5 px),
+        # which a refinement with the depth residuals follows: one LM round on its inliers is
+        # enough there (monocular KITTI 07 odometry drifts more with it: 1.16 vs < 1 m)
+        T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations,
+                             refine_rounds=1 if not final and self.sensor != "mono" else 2)
+        if T_cw is None:
+            return None, np.zeros(len(sel), bool)
+        if not final:  # a refinement with all residuals follows the second association pass
+            return T_cw, m
         T_cw, inl = refine_pose(T_cw, Xw, uv, self.K, sigma, ur, self.bf)
         return T_cw, inl
 

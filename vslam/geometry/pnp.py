@@ -99,6 +99,8 @@ def solve_pnp(
         threshold_px: inlier threshold on the reprojection error, pixels.
         min_inliers: fewer final inliers raise :class:`GeometryError` (capped at ``N``, at least 4).
         method: minimal solver inside RANSAC (``p3p`` is the fastest; ``sqpnp``/``epnp`` also work).
+        refine_rounds: LM rounds (each re-selecting the inliers) after the initial guess's gated
+            round; 1 when a later refinement follows anyway.
 
     Returns:
         ``(T_cam_world (4, 4), inlier_mask (N,) bool)``.

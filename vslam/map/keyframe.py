@@ -2,8 +2,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 @dataclass
@@ -52,7 +56,7 @@ class KeyFrame:
     def observed_ids(self) -> np.ndarray:
         return self.point_ids[self.point_ids >= 0]
 
-    def keypoint_tree(self):
+    def keypoint_tree(self) -> "cKDTree":
         """A kd-tree (``scipy.spatial.cKDTree``) of ``uv_undist`` for guided matching into this
         keyframe, built on first use and kept (not a field: never saved with the map)."""
         tree = self.__dict__.get("_keypoint_tree")

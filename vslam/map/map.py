@@ -45,15 +45,14 @@ class Map:
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
         """Recompute ``kf_id``'s links: one vectorized pass over every keyframe's observations."""
         kf = self.keyframes[kf_id]
-        ids = unique_ids(len(self.points), kf.observed_ids())
+        mine = np.zeros(len(self.points), dtype=bool)  # the points this keyframe observes
+        mine[kf.observed_ids()] = True
         links = self.covisibility.setdefault(kf_id, {})
         others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
-        if not others or len(ids) == 0:
+        if not others or not mine.any():
             return
         obs = [o.observed_ids() for o in others]
         owner = np.repeat(np.arange(len(others)), [len(a) for a in obs])
-        mine = np.zeros(len(self.points), dtype=bool)
-        mine[ids] = True
         shared = mine[np.concatenate(obs)]
         weights = np.bincount(owner[shared], minlength=len(others))
         for j in np.flatnonzero(weights >= min_weight):

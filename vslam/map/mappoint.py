@@ -40,7 +40,6 @@ class MapPoint:
         return self.found / max(self.visible, 1)
 
 
-
 def unique_ids(n: int, *arrays: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
     """The sorted unique ids in ``[0, n)`` found in ``arrays`` and not in ``exclude``: what
     ``np.setdiff1d(np.union1d(...), exclude)`` gives, by one boolean mask over the id range
@@ -61,6 +60,7 @@ def _count(counter: np.ndarray, ids: np.ndarray) -> None:
         return
     lo, hi = int(ids.min()), int(ids.max()) + 1
     counter[lo:hi] += np.bincount(ids - lo, minlength=hi - lo).astype(counter.dtype)
+
 
 class MapPointStore:
     """Columnar storage of map points; ids are rows and are never reused until :meth:`compact`."""
