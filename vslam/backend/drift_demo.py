@@ -19,6 +19,7 @@ import numpy as np
 from vslam.backend.pose_graph import optimize_pose_graph, sim3_matrix
 from vslam.backend.schur_lm import so3_exp
 from vslam.errors import ConfigError
+from vslam.geometry.lie import inv_T
 from vslam.geometry.umeyama import umeyama
 
 LOG = logging.getLogger(__name__)
@@ -36,14 +37,6 @@ class LoopSimulation:
     scale: np.ndarray
     sigma_rot: float
     sigma_trans: float
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.tile(np.eye(4), T.shape[:-2] + (1, 1))
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    return out
 
 
 def simulate_loop(n_poses: int = 100, radius: float = 10.0, noise: float = 1.0, scale_drift: float = 0.0,
@@ -68,7 +61,7 @@ def simulate_loop(n_poses: int = 100, radius: float = 10.0, noise: float = 1.0, 
     sigma_rot = np.deg2rad(0.1) * noise
     sigma_trans = 0.005 * noise
     yaw_bias = np.deg2rad(0.2) * noise
-    T_true_rel = _inv(T_true[:-1]) @ T_true[1:]
+    T_true_rel = inv_T(T_true[:-1]) @ T_true[1:]
     m = n_poses - 1
     noise_T = np.tile(np.eye(4), (m, 1, 1))
     noise_T[:, :3, :3] = so3_exp(rng.normal(0.0, 1.0, (m, 3)) * sigma_rot + np.array([0.0, yaw_bias, 0.0]))
@@ -100,7 +93,7 @@ def close_loop(sim: LoopSimulation, sim3: bool = False) -> np.ndarray:
     n = len(sim.T_true)
     info = np.diag([1 / sim.sigma_rot**2] * 3 + [1 / sim.sigma_trans**2] * 3 + ([1e4] if sim3 else []))
     edges = [(k, k + 1, sim.T_rel[k], info) for k in range(n - 1)]
-    T_loop = _inv(sim.T_true[-1]) @ sim.T_true[0]
+    T_loop = inv_T(sim.T_true[-1]) @ sim.T_true[0]
     if sim3:
         # the loop measures node 0 in the frame of node N-1, whose local map is scale[-1] larger
         S_loop = sim3_matrix(T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3], sim.scale[-1])

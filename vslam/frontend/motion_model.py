@@ -4,12 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+from vslam.frontend.pose import inv_T  # the tracker's SE(3) inverse (no Sim(3) scale check)
 
 
 class MotionModel:
@@ -33,6 +28,6 @@ class MotionModel:
 
     def update(self, T_world_cam: np.ndarray) -> None:
         if self.T_world_last is not None:
-            self.T_last_cur = _inv(self.T_world_last) @ T_world_cam
+            self.T_last_cur = inv_T(self.T_world_last) @ T_world_cam
             self.valid = True
         self.T_world_last = T_world_cam.copy()
