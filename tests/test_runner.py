@@ -10,7 +10,7 @@ import pytest
 from vslam.api import run_path
 from vslam.datasets.synthetic import SyntheticConfig, distance_to_scene, render_sequence
 from vslam.eval import evaluate_trajectories
-from vslam.eval.trajectory import read_tum
+from vslam.trajectory import read_tum
 from vslam.reconstruction import read_ply, read_topology
 from vslam.runner import run_sequence
 
@@ -161,7 +161,7 @@ class _ThreadProbe:
         return {}
 
     def trajectory(self):
-        from vslam.eval.trajectory import Trajectory
+        from vslam.trajectory import Trajectory
 
         return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
 

@@ -56,7 +56,7 @@ def localize_path(
 
     ``config`` defaults to the mapping run's ``MAP_DIR/config.yaml`` when there is one (so features are
     detected as they were for the map); ``overrides`` starting with ``localize.`` set
-    :class:`vslam.frontend.localizer.LocalizerConfig` fields, the others the root Config.
+    :class:`vslam.localizer.LocalizerConfig` fields, the others the root Config.
     Returns a :class:`vslam.runner.RunResult` (``stats`` and the trajectory of the localized frames).
     Raises :class:`MapFormatError` for a missing or corrupt map, :class:`DatasetError` for a bad sequence.
     """
@@ -64,8 +64,8 @@ def localize_path(
 
     from vslam.api import open_sequence, resolve_config
     from vslam.config import load_config
-    from vslam.eval.trajectory import Trajectory, format_tum_line, tum_rows_from_poses
-    from vslam.frontend.localizer import Localizer, LocalizerConfig
+    from vslam.trajectory import Trajectory, format_tum_line, tum_rows_from_poses
+    from vslam.localizer import Localizer, LocalizerConfig
     from vslam.map.io import load_map
     from vslam.runner import RunResult, _evaluate, write_stats
 

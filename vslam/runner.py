@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from vslam.config import dump_config
-from vslam.eval.trajectory import Trajectory, format_tum_line, tum_rows_from_poses, write_tum
+from vslam.trajectory import Trajectory, format_tum_line, tum_rows_from_poses, write_tum
 
 log = logging.getLogger(__name__)
 

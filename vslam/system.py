@@ -22,10 +22,10 @@ from typing import Any, Callable
 import numpy as np
 
 from vslam.datasets.frame import Frame
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.features.config import FeatureConfig
 from vslam.frontend.config import FrontendConfig
-from vslam.frontend.pose import inv_T
+from vslam.geometry.lie import inv_se3
 from vslam.frontend.tracker import Tracker
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
@@ -149,7 +149,7 @@ class System:
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
-        D = T_world_kf_after @ inv_T(T_world_kf_before)
+        D = T_world_kf_after @ inv_se3(T_world_kf_before)
         mm = self.tracker.motion_model
         if mm.T_world_last is not None:
             mm.T_world_last = D @ mm.T_world_last

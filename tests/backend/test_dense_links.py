@@ -6,7 +6,8 @@ from scipy.spatial.transform import Rotation
 
 from vslam.backend.bundle_adjustment import local_bundle_adjustment
 from vslam.backend.config import LocalBAConfig
-from vslam.backend.dense_links import DenseLink, add_dense_links, sample_depth_grid, strip_dense_links
+from vslam.backend.dense_links import add_dense_links, strip_dense_links
+from vslam.map.dense_links import DenseLink, sample_depth_grid
 from vslam.backend.problem import BAProblem
 from vslam.geometry.camera import PinholeCamera
 

@@ -13,7 +13,7 @@ import pytest
 from vslam.backend.local_mapping import LocalMapper
 from vslam.config import BackendConfig, Config
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.geometry.umeyama import umeyama
 from vslam.loop.config import LoopConfig
 from vslam.system import System

@@ -111,7 +111,7 @@ def test_child_tracking_loop_with_a_stand_in_wheel(tmp_path, monkeypatch, shared
     """track_sequence with a fake wheel: the final (EuRoC) trajectory is used when written, else the
     online poses (lost frame dropped); settings and stats files are written."""
     from vslam.datasets import open_dataset
-    from vslam.eval.trajectory import read_trajectory
+    from vslam.trajectory import read_trajectory
 
     seq = shared_data / "tum_rgbd_freiburg1_desk_9frames"
     gt = open_dataset(seq, sensor="rgbd").ground_truth()
@@ -142,7 +142,7 @@ if sys.argv[1:2] == ["-c"]:
 args = dict(zip(sys.argv[3::2], sys.argv[4::2]))  # after "-m vslam.bench.orbslam3_baseline"
 assert sys.argv[1:3] == ["-m", "vslam.bench.orbslam3_baseline"], sys.argv
 from vslam.datasets import open_dataset
-from vslam.eval.trajectory import write_tum
+from vslam.trajectory import write_tum
 if {crash}:
     import os, signal
     os.kill(os.getpid(), signal.SIGSEGV)
@@ -177,7 +177,7 @@ def test_subprocess_protocol_with_a_stand_in_interpreter(tmp_path, shared_data):
 
     def ours(path, output, **kw):  # a stand-in vslam: the exact ground truth, 5 frames/s
         from vslam.datasets import open_dataset
-        from vslam.eval.trajectory import write_tum
+        from vslam.trajectory import write_tum
 
         gt = open_dataset(path, sensor="rgbd").ground_truth()
         write_tum(Path(output) / "trajectory.txt", gt)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from vslam.cli import main
-from vslam.eval.trajectory import read_tum
+from vslam.trajectory import read_tum
 
 
 def test_slam_demo_tracks_the_synthetic_loop(tmp_path, capsys):

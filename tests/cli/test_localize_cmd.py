@@ -9,7 +9,7 @@ import pytest
 from vslam.api import run_path
 from vslam.cli import main
 from vslam.datasets.synthetic import SyntheticConfig, render_sequence
-from vslam.eval.trajectory import read_tum
+from vslam.trajectory import read_tum
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from vslam.datasets.base import associate, interpolate_poses, read_camera_yaml
 from vslam.errors import CalibrationError
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 
 
 def _associate_reference(first, second, offset, max_difference):

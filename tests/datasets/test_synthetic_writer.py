@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from vslam.datasets.synthetic import DEPTH_SCALE, SyntheticConfig, SyntheticSequence, depth_to_png, render_sequence
-from vslam.eval.trajectory import read_tum
+from vslam.trajectory import read_tum
 
 CFG = SyntheticConfig(n_frames=4, pixel_noise=2.0, depth_noise=0.003, missing_depth=0.05, seed=3, start_time=100.0)
 

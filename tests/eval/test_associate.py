@@ -6,7 +6,7 @@ import pytest
 
 from vslam.errors import TrajectoryError
 from vslam.eval.associate import associate, associate_trajectories, match_timestamps
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 
 
 def traj(ts) -> Trajectory:

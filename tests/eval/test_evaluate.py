@@ -13,7 +13,7 @@ import pytest
 
 from vslam.errors import TrajectoryError
 from vslam.eval import EvalConfig, evaluate_files, evaluate_trajectories
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 
 TUM_CASES = [
     ("tum/freiburg1_xyz-rgbdslam.txt", "tum/freiburg1_xyz-groundtruth.txt", 785),

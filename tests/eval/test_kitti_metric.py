@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from vslam.errors import TrajectoryError
 from vslam.eval.kitti_metric import kitti_odometry_error
-from vslam.eval.trajectory import read_kitti
+from vslam.trajectory import read_kitti
 
 
 def straight_line(n: int = 101, step_m: float = 1.0) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 from vslam.errors import TrajectoryError
 from vslam.eval import evaluate_trajectories
 from vslam.eval.plot import plot_evaluation, top_view_axes
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 
 
 def test_top_view_axes():

@@ -1,5 +1,4 @@
-"""Descriptor matching (faiss vs brute force, correctness under a known warp, real frames with GT)
-and guided matching by projection."""
+"""Descriptor matching (faiss vs brute force, correctness under a known warp, real frames with GT)."""
 from __future__ import annotations
 
 import cv2
@@ -12,7 +11,6 @@ from vslam.features import (
     create_detector,
     hamming_matrix,
     knn,
-    match_by_projection,
     match_descriptors,
 )
 from vslam.features.match import l2_matrix
@@ -150,45 +148,3 @@ def test_matches_correct_on_real_tum_frames(shared_data):
     assert (err < 5.0).mean() >= 0.95
     assert (err < 3.0).mean() >= 0.8
     assert (err > 10.0).mean() <= 0.02
-
-
-def test_guided_matching_finds_true_keypoints(warped_pair, homography_apply):
-    H, f0, f1 = warped_pair
-    rng = np.random.default_rng(3)
-    proj = homography_apply(H, f0.uv) + rng.normal(0, 1.0, (len(f0), 2))  # a noisy prediction
-    radius = 4.0 * 1.2 ** f0.octave
-    mi, ki, dist = match_by_projection(proj, f0.descriptors, f1.uv, f1.descriptors, radius, True,
-                                       max_distance=64, proj_octave=f0.octave, kp_octave=f1.octave)
-    err = np.linalg.norm(homography_apply(H, f0.uv[mi]) - f1.uv[ki], axis=1)
-    assert len(mi) > 0.5 * len(f0)
-    # the true keypoint: within 3 px, or 3 level pixels on coarse octaves (positions there are
-    # quantized to 1.2**octave px)
-    fine = f0.octave[mi] <= 3
-    assert (err[fine] < 3.0).mean() >= 0.95
-    assert (err < 3.0 * 1.2 ** f0.octave[mi]).mean() >= 0.97
-    assert len(np.unique(ki)) == len(ki) and (np.diff(mi) > 0).all() and dist.max() <= 64
-    # each match is the best descriptor inside the radius
-    near = np.linalg.norm(proj[mi][:, None] - f1.uv[None], axis=2) <= radius[mi, None]
-    near &= np.abs(f1.octave[None] - f0.octave[mi, None]) <= 1
-    dall = hamming_matrix(f0.descriptors[mi], f1.descriptors).astype(np.float32)
-    best = np.where(near, dall, np.inf).min(1)
-    np.testing.assert_array_equal(dist, best)
-
-
-def test_guided_matching_radius_and_nan():
-    kp = np.array([[10.0, 10.0], [30.0, 10.0]])
-    desc = np.array([[0] * 32, [255] * 32], np.uint8)
-    proj = np.array([[12.0, 10.0], [np.nan, 0.0], [29.0, 10.0], [100.0, 100.0]])
-    mdesc = np.array([[0] * 32, [0] * 32, [255] * 32, [0] * 32], np.uint8)
-    mi, ki, d = match_by_projection(proj, mdesc, kp, desc, np.array([3.0, 3.0, 0.5, 3.0]), True)
-    # map point 2 is 1 px away but its radius is 0.5; map point 3 has nothing in range
-    np.testing.assert_array_equal(mi, [0])
-    np.testing.assert_array_equal(ki, [0])
-    # one keypoint, two map points: the closer descriptor wins
-    mdesc2 = np.array([[1] + [0] * 31, [0] * 32], np.uint8)
-    mi, ki, d = match_by_projection(np.array([[10.0, 11.0], [10.0, 9.0]]), mdesc2, kp, desc, 3.0, True)
-    np.testing.assert_array_equal(mi, [1])
-    np.testing.assert_array_equal(d, [0])
-    # an unavailable keypoint is never returned
-    mi, ki, d = match_by_projection(proj[:1], mdesc[:1], kp, desc, 3.0, True, kp_available=np.array([False, True]))
-    assert len(mi) == 0

@@ -6,7 +6,7 @@ import functools
 import numpy as np
 
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.geometry.umeyama import umeyama
 
 N_FRAMES = 40

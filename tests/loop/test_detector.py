@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vslam.loop.config import DatabaseConfig, LoopDetectorConfig
-from vslam.loop.database import KeyframeDatabase
+from vslam.map.database import KeyframeDatabase
 from vslam.loop.detector import LoopDetector
 from vslam.loop.vocabulary import BowVector
 

@@ -16,7 +16,7 @@ import vslam.loop.closing as closing
 from vslam.config import Config, load_config
 from vslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from vslam.eval.evaluate import evaluate_trajectories
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.system import System
 
 SOLVE_DELAY_S = 1.5

@@ -93,7 +93,7 @@ def test_cabinet_loop_closes(shared_data):
     were culled) and only three keyframes come back, so neither ``min_inliers`` nor temporal
     consistency can accept it; the covisibility-confirmed single detection does."""
     from vslam.datasets import open_dataset
-    from vslam.eval.trajectory import read_tum
+    from vslam.trajectory import read_tum
 
     root = shared_data / "tum_fr3_cabinet_keyframes58"
     ds = open_dataset(root, sensor="rgbd")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam.loop.database import KeyframeDatabase
+from vslam.map.database import KeyframeDatabase
 from vslam.loop.vocabulary import BowVector
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("open3d")
 
 from vslam.cli import main  # noqa: E402
-from vslam.eval.trajectory import Trajectory, write_tum  # noqa: E402
+from vslam.trajectory import Trajectory, write_tum  # noqa: E402
 from vslam.reconstruction import read_ply, reconstruct_run, select_frames  # noqa: E402
 
 

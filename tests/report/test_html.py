@@ -61,7 +61,7 @@ def test_loops_are_drawn_between_the_poses_of_their_frames(tmp_path):
 def test_ground_truth_from_the_dataset_named_in_stats(tmp_path, shared_data):
     """No groundtruth.txt: the report opens the dataset at stats.json's path and aligns to its GT."""
     from vslam.datasets import open_dataset
-    from vslam.eval.trajectory import Trajectory, write_tum
+    from vslam.trajectory import Trajectory, write_tum
 
     seq = shared_data / "tum_rgbd_freiburg1_desk_9frames"
     gt = open_dataset(seq, sensor="rgbd").ground_truth()

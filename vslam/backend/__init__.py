@@ -7,7 +7,7 @@ from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bund
 from vslam.backend.config import EKFConfig, GlobalBAConfig, LocalBAConfig, PoseGraphConfig
 from vslam.backend.drift_demo import run_drift_demo
 from vslam.backend.ekf import EKFState, PoseEKF, pose_covariance_from_inliers
-from vslam.backend.pose_graph import (
+from vslam.map.pose_graph import (
     PoseGraphResult, correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix,
 )
 from vslam.backend.problem import BAProblem, BAResult

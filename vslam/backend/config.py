@@ -12,6 +12,7 @@ from typing import Literal
 
 from vslam.errors import ConfigError
 from vslam.geometry.camera import RGBD_VIRTUAL_BASELINE
+from vslam.map.config import PoseGraphConfig  # shared with loop closing; re-exported here
 
 _SOLVERS = ("schur", "gtsam")
 
@@ -110,34 +111,6 @@ class GlobalBAConfig(LocalBAConfig):
 
     iterations_robust: int = 10
     iterations_refine: int = 20
-
-
-@dataclass(frozen=True)
-class PoseGraphConfig:
-    """SE(3) / Sim(3) pose-graph optimization (essential graph, ORB-SLAM2 Sec. VI-D).
-
-    Attributes:
-        max_iterations: LM iterations.
-        relative_tolerance: LM relative error tolerance.
-        default_sigma_rotation: radians, edge std used when an edge gives no information.
-        default_sigma_translation: metres, idem.
-        default_sigma_scale: log-scale std of Sim(3) edges without information.
-        prior_sigma: std of the priors that hold fixed nodes (tiny = fixed).
-    """
-
-    max_iterations: int = 100
-    relative_tolerance: float = 1e-8
-    default_sigma_rotation: float = 0.01
-    default_sigma_translation: float = 0.05
-    default_sigma_scale: float = 0.01
-    prior_sigma: float = 1e-6
-
-    def __post_init__(self) -> None:
-        if self.max_iterations < 1:
-            raise ConfigError(f"pose graph max_iterations must be >= 1, got {self.max_iterations}")
-        for name in ("default_sigma_rotation", "default_sigma_translation", "default_sigma_scale", "prior_sigma"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"pose graph config {name} must be > 0, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ Odometry composes noisy relative poses ``T_k_k+1 = T_true_k_k+1 Exp(w_k)``, ``w_
 sigma_rot^2, sigma_trans^2))``, so the error of ``T_world_k = T_0_1 ... T_k-1_k`` grows without
 bound (a random walk on SE(3); Scaramuzza & Fraundorfer, "Visual Odometry Part I", 2011, Sec. VII).
 A single loop-closure edge between the last and the first pose, optimized with
-:func:`vslam.backend.pose_graph.optimize_pose_graph`, spreads the accumulated error over the loop.
+:func:`vslam.map.pose_graph.optimize_pose_graph`, spreads the accumulated error over the loop.
 ``scale_drift`` (monocular) additionally multiplies each step's translation by ``(1 + scale_drift)``
 so the local scale grows along the loop; the Sim(3) graph (``sim3=True``) corrects it.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam.backend.pose_graph import optimize_pose_graph, sim3_matrix
+from vslam.map.pose_graph import optimize_pose_graph, sim3_matrix
 from vslam.backend.schur_lm import so3_exp
 from vslam.errors import ConfigError
 from vslam.geometry.lie import inv_T

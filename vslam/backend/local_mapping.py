@@ -48,7 +48,7 @@ from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bund
 from vslam.backend.config import BackendConfig
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
-from vslam.keyframe_queue import KeyframeQueue
+from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.mappoint import unique_ids
 from vslam.map.map import Map
@@ -352,7 +352,7 @@ class LocalMapper:
 
     def _fuse_into(self, kf: KeyFrame, pts: np.ndarray, remap: np.ndarray) -> int:
         """Match points ``pts`` into keyframe ``kf``; returns the number of points fused away."""
-        from vslam.frontend.local_map import guided_match, project_local_points
+        from vslam.map.matching import guided_match, project_local_points
 
         store = self.map.points
         pts = pts[store.alive[pts]]

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vslam.eval.trajectory import Trajectory, write_tum
+from vslam.trajectory import Trajectory, write_tum
 
 
 def _options(overrides) -> dict[str, Any]:

@@ -201,7 +201,7 @@ def run_orbslam3(path: str | Path, output: str | Path | None, sensor: str | None
             end of ``orbslam3.log`` are in the message).
     """
     from vslam.datasets import open_dataset
-    from vslam.eval.trajectory import read_trajectory
+    from vslam.trajectory import read_trajectory
     from vslam.runner import _evaluate
 
     _check_pace(pace, pace_rate)
@@ -317,14 +317,14 @@ def _track(slam: Any, sensor: str, frame: Any) -> np.ndarray | None:
 
 def read_euroc_ns(path: str | Path):
     """ORB-SLAM3's ``SaveTrajectoryEuRoC`` file (``t_ns tx ty tz qx qy qz qw``, spaces) as a
-    :class:`~vslam.eval.trajectory.Trajectory` in seconds; None when missing or empty.
+    :class:`~vslam.trajectory.Trajectory` in seconds; None when missing or empty.
 
     ORB-SLAM3 repeats the last frame's time and pose for every frame it lost: only the first line
     of each timestamp is kept, so lost frames do not count as poses.
     """
     from scipy.spatial.transform import Rotation
 
-    from vslam.eval.trajectory import Trajectory
+    from vslam.trajectory import Trajectory
 
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
@@ -351,7 +351,7 @@ def track_sequence(path: str | Path, output: str | Path, vocabulary: str | Path,
     loading the vocabulary is ``init_s``. ``track_ms_*`` is the time spent in the tracking calls.
     """
     from vslam.datasets import open_dataset
-    from vslam.eval.trajectory import Trajectory, write_tum
+    from vslam.trajectory import Trajectory, write_tum
 
     orb = _import_pyorbslam3()
     out = Path(output)

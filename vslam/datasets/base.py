@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)

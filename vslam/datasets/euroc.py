@@ -36,7 +36,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
-from vslam.eval.trajectory import Trajectory, read_euroc, read_tum
+from vslam.trajectory import Trajectory, read_euroc, read_tum
 from vslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)

@@ -29,7 +29,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
-from vslam.eval.trajectory import read_kitti
+from vslam.trajectory import read_kitti
 from vslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)

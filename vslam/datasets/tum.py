@@ -39,7 +39,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
-from vslam.eval.trajectory import read_tum
+from vslam.trajectory import read_tum
 from vslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)

@@ -3,7 +3,7 @@ from vslam.eval.associate import associate, associate_trajectories
 from vslam.eval.evaluate import EvalConfig, EvalResult, evaluate_files, evaluate_trajectories
 from vslam.eval.kitti_metric import KittiResult, kitti_odometry_error
 from vslam.eval.metrics import Alignment, ErrorStats, align, ate_errors, rpe_errors, rpe_pairs
-from vslam.eval.trajectory import Trajectory, read_trajectory, write_trajectory
+from vslam.trajectory import Trajectory, read_trajectory, write_trajectory
 
 __all__ = [
     "Alignment", "ErrorStats", "EvalConfig", "EvalResult", "KittiResult", "Trajectory", "align",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from vslam.errors import TrajectoryError
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 
 
 def match_timestamps(

@@ -19,7 +19,7 @@ from vslam.eval.kitti_metric import KittiResult, kitti_odometry_error
 from vslam.eval.metrics import (
     Alignment, ErrorStats, align, ate_errors, ate_rotation_errors_deg, rpe_errors, rpe_pairs,
 )
-from vslam.eval.trajectory import Trajectory, detect_format, read_trajectory
+from vslam.trajectory import Trajectory, detect_format, read_trajectory
 
 log = logging.getLogger(__name__)
 

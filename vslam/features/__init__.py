@@ -5,7 +5,6 @@ Public API::
     det = create_detector(FeatureConfig(detector="orb"))   # once
     feats = det.detect(gray)                                # Features(uv, descriptors, octave, ...)
     i1, i2, dist = match_descriptors(f1.descriptors, f2.descriptors, f1.binary)
-    map_idx, kp_idx, dist = match_by_projection(proj_uv, map_desc, feats.uv, feats.descriptors, radius, True)
     curr_uv, ok = track_klt(prev_gray, curr_gray, prev_uv, KLTConfig())
     new_uv = detect_new_points(gray, existing_uv, max_total=1000, min_distance=15)
     left_idx, u_right = match_stereo(fl, fr, StereoConfig(), left_gray, right_gray, camera=cam)
@@ -19,7 +18,6 @@ from vslam.features.match import (
     descriptor_distances,
     hamming_matrix,
     knn,
-    match_by_projection,
     match_descriptors,
 )
 from vslam.features.stereo import match_stereo, match_stereo_descriptors, stereo_depth
@@ -28,6 +26,6 @@ __all__ = [
     "FeatureConfig", "KLTConfig", "MatcherConfig", "StereoConfig",
     "Features", "build_pyramid", "create_detector", "describe_orb", "grid_select",
     "detect_new_points", "occupancy_mask", "track_klt",
-    "descriptor_distances", "hamming_matrix", "knn", "match_by_projection", "match_descriptors",
+    "descriptor_distances", "hamming_matrix", "knn", "match_descriptors",
     "match_stereo", "match_stereo_descriptors", "stereo_depth",
 ]

@@ -1,5 +1,6 @@
-"""Descriptor matching: brute-force k-NN (faiss) with Lowe's ratio test and a mutual check, and
-guided matching of projected map points to keypoints (ORB-SLAM's ``SearchByProjection``).
+"""Descriptor matching: brute-force k-NN (faiss) with Lowe's ratio test and a mutual check.
+Guided matching of projected map points (ORB-SLAM's ``SearchByProjection``) is
+:func:`vslam.map.matching.guided_match`.
 
 Hamming distances in NumPy use ``np.bitwise_count`` on XOR'd packed bytes.
 
@@ -8,7 +9,6 @@ Example:
 """
 from __future__ import annotations
 
-import itertools
 import logging
 
 import numpy as np
@@ -148,97 +148,3 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, binary: bool, ratio:
         keep &= back[np.maximum(nn, 0), 0] == np.arange(len(desc1))
     i1 = np.flatnonzero(keep)
     return i1, nn[i1], best[i1]
-
-
-def _best_two_per_group(group: np.ndarray, dist: np.ndarray, other: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For pairs ``(group, other)`` with distances: per group, the position of the smallest
-    distance (ties: lower ``other``) and the second-smallest distance (inf if none).
-    Returns ``(groups, best_pos, best_dist, second_dist)``."""
-    di = dist.astype(np.int64)
-    if len(dist) and np.all(di == dist) and di.min() >= 0:  # Hamming: one unique int64 key
-        n_other = int(other.max()) + 1
-        o = np.argsort((group * (int(di.max()) + 1) + di) * n_other + other)
-    else:
-        o = np.lexsort((other, dist, group))
-    g = group[o]
-    first = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    nxt = first + 1
-    has2 = np.r_[first[1:], len(g)] > nxt
-    second = np.where(has2, dist[o][np.minimum(nxt, len(g) - 1)], np.inf)
-    return g[first], o[first], dist[o][first], second
-
-
-def match_by_projection(proj_uv: np.ndarray, map_desc: np.ndarray, kp_uv: np.ndarray,
-                        kp_desc: np.ndarray, radius: float | np.ndarray, binary: bool,
-                        max_distance: float | None = None, ratio: float = 1.0,
-                        max_candidates: int | None = None, proj_octave: np.ndarray | None = None,
-                        kp_octave: np.ndarray | None = None, octave_tolerance: int = 1,
-                        kp_available: np.ndarray | None = None,
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Guided matching: for each projected map point, the keypoint with the closest descriptor
-    within ``radius`` pixels (ORB-SLAM's ``SearchByProjection``, Mur-Artal et al. 2015, Sec. V-D).
-
-    Args:
-        proj_uv: ``(M, 2)`` predicted pixel positions of the map points (NaN rows are skipped).
-        map_desc: ``(M, D)`` their descriptors.
-        kp_uv, kp_desc: ``(N, 2)``, ``(N, D)`` the frame's keypoints.
-        radius: search radius in pixels, scalar or ``(M,)`` (e.g. ``r * scale_factor**level``).
-        binary: Hamming (True) or L2 distances.
-        max_distance: reject matches whose best distance exceeds this (ORB-SLAM: 100 bits).
-        ratio: best < ratio * second best among the candidates (1.0 = off).
-        max_candidates: optionally only the nearest ``max_candidates`` keypoints (in pixels) per
-            map point are compared; None compares all inside the radius.
-        proj_octave, kp_octave, octave_tolerance: if both given, a keypoint is a candidate only
-            when its octave is within ``octave_tolerance`` of the predicted one.
-        kp_available: optional ``(N,)`` bool; False keypoints (e.g. already matched) are skipped.
-
-    Returns ``(map_idx, kp_idx, dist)``; every keypoint is used at most once (the map point with
-    the smallest distance wins), sorted by ``map_idx``. Candidates come from one k-d tree ball
-    query (per-point radii); all descriptor distances are computed in one batch.
-    """
-    from scipy.spatial import cKDTree
-
-    proj_uv = np.asarray(proj_uv, np.float64).reshape(-1, 2)
-    kp_uv = np.asarray(kp_uv, np.float64).reshape(-1, 2)
-    m, n = len(proj_uv), len(kp_uv)
-    if m == 0 or n == 0:
-        return _EMPTY
-    rad = np.broadcast_to(np.asarray(radius, np.float64), (m,))
-    rows = np.flatnonzero(np.isfinite(proj_uv).all(1) & (rad > 0))
-    if len(rows) == 0:
-        return _EMPTY
-    lists = cKDTree(kp_uv).query_ball_point(proj_uv[rows], rad[rows], return_sorted=False)
-    cnt = np.fromiter(map(len, lists), np.int64, len(lists))
-    if cnt.sum() == 0:
-        return _EMPTY
-    pm = np.repeat(rows, cnt)  # pair: map point
-    pk = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(cnt.sum()))  # pair: keypoint
-    ok = np.ones(len(pm), bool)
-    if proj_octave is not None and kp_octave is not None:
-        ok &= np.abs(np.asarray(kp_octave)[pk] - np.asarray(proj_octave)[pm]) <= octave_tolerance
-    if kp_available is not None:
-        ok &= np.asarray(kp_available, bool)[pk]
-    pm, pk = pm[ok], pk[ok]
-    if max_candidates is not None and len(pm):
-        sp = np.linalg.norm(kp_uv[pk] - proj_uv[pm], axis=1)
-        o = np.lexsort((pk, sp, pm))
-        pm, pk = pm[o], pk[o]
-        start = np.flatnonzero(np.r_[True, pm[1:] != pm[:-1]])
-        rank = np.arange(len(pm)) - np.repeat(start, np.diff(np.r_[start, len(pm)]))
-        pm, pk = pm[rank < max_candidates], pk[rank < max_candidates]
-    if len(pm) == 0:
-        return _EMPTY
-    d = descriptor_distances(np.asarray(map_desc)[pm], np.asarray(kp_desc)[pk], binary)
-    groups, pos, best, second = _best_two_per_group(pm, d, pk)
-    keep = np.ones(len(groups), bool)
-    if max_distance is not None:
-        keep &= best <= max_distance
-    if ratio < 1.0:
-        keep &= best < ratio * second
-    map_idx, kp_idx, best = groups[keep], pk[pos[keep]], best[keep].astype(np.float32)
-    # each keypoint at most once: smallest distance wins (ties: lower map index)
-    o = np.lexsort((map_idx, best))
-    _, first = np.unique(kp_idx[o], return_index=True)
-    sel = np.sort(o[first])  # back to map_idx order
-    return map_idx[sel].astype(np.int64), kp_idx[sel].astype(np.int64), best[sel]

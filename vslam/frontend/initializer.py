@@ -15,7 +15,9 @@ import numpy as np
 
 from vslam.frontend.config import FrontendConfig
 from vslam.frontend.observation import Observation
-from vslam.frontend.pose import essential_pose, make_T, parallax_deg, reprojection_error, triangulate
+from vslam.geometry.epipolar import essential_pose
+from vslam.geometry.lie import make_T
+from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
 
 log = logging.getLogger(__name__)
 
@@ -68,11 +70,11 @@ class MonoInitializer:
             log.debug("init: status %s, %d inliers", status, int(mask.sum()))
             return None
         T_cur_ref = make_T(R, t)
-        X = triangulate(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
-        e1, z1 = reprojection_error(np.eye(4), self.K, X, x1[mask])
-        e2, z2 = reprojection_error(T_cur_ref, self.K, X, x2[mask])
+        X = triangulate_dlt(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
+        e1, z1 = reprojection_error_depth(np.eye(4), self.K, X, x1[mask])
+        e2, z2 = reprojection_error_depth(T_cur_ref, self.K, X, x2[mask])
         T_ref_cur = np.linalg.inv(T_cur_ref)
-        par = parallax_deg(np.eye(4), T_ref_cur, X)
+        par = ray_parallax_deg(np.eye(4), T_ref_cur, X)
         thr = 4.0 * cfg.essential_px
         good = (z1 > 0) & (z2 > 0) & (e1 < thr) & (e2 < thr) & (par > 0.2) & np.all(np.isfinite(X), axis=1)
         if good.sum() < cfg.init_min_matches * 0.5:

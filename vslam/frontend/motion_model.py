@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.frontend.pose import inv_T  # the tracker's SE(3) inverse (no Sim(3) scale check)
+from vslam.geometry.lie import inv_se3  # the tracker's SE(3) inverse (no Sim(3) scale check)
 
 
 class MotionModel:
@@ -28,6 +28,6 @@ class MotionModel:
 
     def update(self, T_world_cam: np.ndarray) -> None:
         if self.T_world_last is not None:
-            self.T_last_cur = inv_T(self.T_world_last) @ T_world_cam
+            self.T_last_cur = inv_se3(self.T_world_last) @ T_world_cam
             self.valid = True
         self.T_world_last = T_world_cam.copy()

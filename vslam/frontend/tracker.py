@@ -28,16 +28,17 @@ from vslam.features.config import FeatureConfig
 from vslam.frontend.config import FrontendConfig
 from vslam.frontend.initializer import MonoInitializer
 from vslam.frontend.keyframe_policy import need_keyframe
-from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
+from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.motion_model import MotionModel
 from vslam.frontend.prepare import FramePreparer
 from vslam.frontend.observation import (
     Observation, detect_mask, klt_track, sample_depth, stereo_by_flow,
 )
-from vslam.frontend.pose import (
-    align_ransac, essential_pose, inv_T, make_T, parallax_deg, pnp_ransac, refine_pose, reprojection_error,
-    triangulate,
-)
+from vslam.geometry.align import align_ransac
+from vslam.geometry.epipolar import essential_pose
+from vslam.geometry.lie import inv_se3, make_T
+from vslam.geometry.pnp import pnp_ransac, refine_pose
+from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
@@ -192,7 +193,7 @@ class Tracker:
         """Record that keyframe ``kf_id`` was posed by dense alignment to keyframe ``prev_kf_id``."""
         if not self.cfg.dense_links or kf_id is None or kf_id == prev_kf_id:
             return
-        from vslam.backend.dense_links import DenseLink, sample_depth_grid
+        from vslam.map.dense_links import DenseLink, sample_depth_grid
 
         uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.max_depth, 6.0))
         if len(z):
@@ -210,7 +211,7 @@ class Tracker:
                 has = prev.point_ids >= 0
                 if has.any():
                     X = self.map.points.position[prev.point_ids[has]]
-                    T_cw = inv_T(T_world_pred)
+                    T_cw = inv_se3(T_world_pred)
                     Xc = X @ T_cw[:3, :3].T + T_cw[:3, 3]
                     front = Xc[:, 2] > 1e-3
                     uvp = self.camera.project(np.where(front[:, None], Xc, 1.0))
@@ -351,7 +352,7 @@ class Tracker:
             X_ref *= s
         self.segment += 1
         T_world_ref = self._T_world_origin()
-        T_world_cur = T_world_ref @ inv_T(T_cur_ref)
+        T_world_cur = T_world_ref @ inv_se3(T_cur_ref)
         X_world = X_ref @ T_world_ref[:3, :3].T + T_world_ref[:3, 3]
         t0 = time.perf_counter()
         ref = init.ref
@@ -371,7 +372,7 @@ class Tracker:
         self._insert_keyframe(frame, gray, cur, T_world_cur, new_points=cfg.association == "track")
         self.timers["mapping"] += time.perf_counter() - t0
         self._start_tracking(T_world_cur, T_world_prev=T_world_ref, gap=gap)
-        Xc = X_world @ inv_T(T_world_cur)[:3, :3].T + inv_T(T_world_cur)[:3, 3]
+        Xc = X_world @ inv_se3(T_world_cur)[:3, :3].T + inv_se3(T_world_cur)[:3, 3]
         self._set_ref2d(cur, T_world_cur, Xc, res.cur_idx.copy())
         self._set_prev(cur, gray)
         backfill = [(init.ref_timestamp, T_world_ref)] + self._localize_pending(kf0)
@@ -389,7 +390,7 @@ class Tracker:
             T_cw, m = pnp_ransac(self.map.points.position[pid[has]], uv[has], self.K, None, self.cfg.pnp_reproj_px,
                                  self.cfg.pnp_iterations)
             if T_cw is not None and m.sum() >= self.cfg.min_inliers:
-                out.append((ts, inv_T(T_cw)))
+                out.append((ts, inv_se3(T_cw)))
         return out
 
     def _set_mono_reference(self, frame: Frame, gray: np.ndarray, obs: Observation) -> None:
@@ -515,7 +516,7 @@ class Tracker:
         T_world_prev = self._T_world_last_tracked()
         # from the motion prediction and from no motion (a turn the prediction did not foresee): the
         # better-agreeing alignment
-        guesses = [inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
+        guesses = [inv_se3(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
         T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=self.cfg.depth_icp_photometric)
         self.timers["pose"] += time.perf_counter() - t0
         if T_prev_cur is None:
@@ -571,11 +572,11 @@ class Tracker:
         t0 = time.perf_counter()
         depth_prev = self._last_depth[0]
         T_world_prev = self._T_world_last_tracked()
-        T_guess = inv_T(T_world_prev) @ T_world_cam
+        T_guess = inv_se3(T_world_prev) @ T_world_cam
         agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess)
         guesses = [T_guess]
         if agree0 < 0.9:  # a doubtful feature pose: also from the motion prediction and from no motion
-            guesses += [inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
+            guesses += [inv_se3(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
         T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=True)
         self.timers["pose"] += time.perf_counter() - t0
         if T_prev_cur is None or agree < agree0:
@@ -624,7 +625,7 @@ class Tracker:
     def _pose_against_map(self, obs: Observation, T_world_pred: np.ndarray | None, relocalize: bool):
         cfg = self.cfg
         pts = self.map.points
-        T_cw_pred = inv_T(T_world_pred) if T_world_pred is not None else None
+        T_cw_pred = inv_se3(T_world_pred) if T_world_pred is not None else None
         t0 = time.perf_counter()
         local_ids = self._local_point_ids()
         vis_ids = np.zeros(0, np.int64)
@@ -693,7 +694,7 @@ class Tracker:
         obs.point_ids[bad] = -1
         if cfg.association == "match":
             pts.record(vis_ids, obs.point_ids[obs.point_ids >= 0])
-        return inv_T(T_cw), int(inl.sum())
+        return inv_se3(T_cw), int(inl.sum())
 
     def _match_without_prediction(self, obs: Observation, local_ids: np.ndarray):
         """Descriptor matching of the whole local map (no pose prior); returns ``(map idx, keypoint idx,
@@ -740,7 +741,7 @@ class Tracker:
             if T_wc is None:
                 return None, inl
             inl[np.flatnonzero(has)[m]] = True
-            return inv_T(T_wc), inl
+            return inv_se3(T_wc), inl
         # 3D-2D
         sigma = obs.sigma[sel]
         ur = None if obs.u_right is None else obs.u_right[sel]
@@ -811,11 +812,11 @@ class Tracker:
                     t_m = float(np.median(diff @ t)) * t  # scale of the unit translation from depth
                 else:  # the rotation from the images, the translation from the depths
                     t_m = np.median(diff, axis=0)
-                T_world_cam = self._T_world_ref2d @ inv_T(make_T(R, t_m))
+                T_world_cam = self._T_world_ref2d @ inv_se3(make_T(R, t_m))
             else:
                 if status == "ok":
                     t_m = self._mono_scale(ref, obs, i1, i2, mask, R, t)
-                    T_world_cam = self._T_world_ref2d @ inv_T(make_T(R, t_m))
+                    T_world_cam = self._T_world_ref2d @ inv_se3(make_T(R, t_m))
                 else:
                     # too little parallax for a translation: rotation from the images, position from
                     # the constant-velocity model; the reference stays
@@ -835,10 +836,10 @@ class Tracker:
         their distances (Scaramuzza & Fraundorfer, "Visual Odometry", RAM 2011, eq. (16))."""
         T_cur_ref_unit = make_T(R, t)
         idx = np.flatnonzero(mask)
-        X = triangulate(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
-        e1, za = reprojection_error(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
-        e2, zb = reprojection_error(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
-        good = (za > 0) & (zb > 0) & (e1 < 2.0) & (e2 < 2.0) & (parallax_deg(np.eye(4), inv_T(T_cur_ref_unit), X) > 0.2)
+        X = triangulate_dlt(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
+        e1, za = reprojection_error_depth(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
+        e2, zb = reprojection_error_depth(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
+        good = (za > 0) & (zb > 0) & (e1 < 2.0) & (e2 < 2.0) & (ray_parallax_deg(np.eye(4), inv_se3(T_cur_ref_unit), X) > 0.2)
         # fallback: the distance the motion model expects between the reference and this frame
         T_pred = self.motion_model.predict()
         s = float(np.linalg.norm(T_pred[:3, 3] - self._T_world_ref2d[:3, 3])) if T_pred is not None else 1.0
@@ -966,12 +967,12 @@ class Tracker:
             return
         T1, T2 = kf1.T_cam_world, kf2.T_cam_world
         x1, x2 = kf1.uv_undist[idx1], kf2.uv_undist[idx2]
-        X = triangulate(T1, T2, self.K, x1, x2)
-        e1, z1 = reprojection_error(T1, self.K, X, x1)
-        e2, z2 = reprojection_error(T2, self.K, X, x2)
+        X = triangulate_dlt(T1, T2, self.K, x1, x2)
+        e1, z1 = reprojection_error_depth(T1, self.K, X, x1)
+        e2, z2 = reprojection_error_depth(T2, self.K, X, x2)
         s1 = np.power(self.scale_factor, kf1.octave[idx1].astype(float))
         s2 = np.power(self.scale_factor, kf2.octave[idx2].astype(float))
-        par = parallax_deg(kf1.T_world_cam, kf2.T_world_cam, X)
+        par = ray_parallax_deg(kf1.T_world_cam, kf2.T_world_cam, X)
         good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < 2.45 * s1) & (e2 < 2.45 * s2) \
             & (par > self.cfg.mono_min_parallax_deg)
         if not good.any():

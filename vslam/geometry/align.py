@@ -137,3 +137,47 @@ def align_points(
             break
         mask = new
     return make_T(R, t, s), mask
+
+
+def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched rigid alignment ``dst ~ R src + t`` (Arun et al. 1987 / Umeyama 1991 without scale)
+    of ``(H, m, 3)`` point sets; returns ``R (H, 3, 3), t (H, 3)``."""
+    ms, md = src.mean(axis=1), dst.mean(axis=1)
+    C = np.einsum("hni,hnj->hij", dst - md[:, None], src - ms[:, None])
+    U, _, Vt = np.linalg.svd(C)
+    d = np.sign(np.linalg.det(U @ Vt))
+    S = np.tile(np.eye(3), (len(src), 1, 1))
+    S[:, 2, 2] = d
+    R = U @ S @ Vt
+    t = md - np.einsum("hij,hj->hi", R, ms)
+    return R, t
+
+
+def align_ransac(
+    X_src: np.ndarray, X_dst: np.ndarray, threshold: np.ndarray | float, iterations: int = 200,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """3D-3D RANSAC (3-point minimal sets, all hypotheses scored at once), then least squares on
+    the inliers, re-scored twice. Returns ``(T_dst_src or None, inlier mask)``."""
+    n = len(X_src)
+    if n < 6:
+        return None, np.zeros(n, bool)
+    rng = rng or np.random.default_rng(0)
+    thr2 = np.broadcast_to(np.asarray(threshold, float) ** 2, (n,))
+    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(iterations)]) if n < 50 else \
+        rng.integers(0, n, size=(iterations, 3))
+    R, t = kabsch_batch(X_src[idx], X_dst[idx])
+    pred = np.matmul(X_src[None], R.transpose(0, 2, 1)) + t[:, None, :]
+    err2 = ((pred - X_dst[None]) ** 2).sum(axis=2)
+    score = (err2 < thr2[None]).sum(axis=1)
+    best = int(np.argmax(score))
+    mask = err2[best] < thr2
+    T = None
+    for _ in range(3):
+        if mask.sum() < 6:
+            return None, mask
+        Rb, tb = kabsch_batch(X_src[mask][None], X_dst[mask][None])
+        T = make_T(Rb[0], tb[0])
+        e2 = ((X_src @ T[:3, :3].T + T[:3, 3] - X_dst) ** 2).sum(axis=1)
+        mask = e2 < thr2
+    return T, mask

@@ -538,3 +538,32 @@ def relative_pose(
     E, mask = estimate_essential(x1, x2, K, threshold_px=threshold_px, confidence=confidence)
     return recover_pose(E, x1, x2, K, mask=mask, min_parallax_ratio=min_parallax_ratio,
                         min_parallax_deg=min_parallax_deg)
+
+
+def essential_pose(
+    uv1: np.ndarray, uv2: np.ndarray, K: np.ndarray, threshold_px: float = 1.0, min_parallax_deg: float = 0.5,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
+    """Relative pose from undistorted pixel matches: ``x2 = R x1 + t`` with ``|t| = 1`` (five-point
+    RANSAC + cheirality, :func:`vslam.geometry.epipolar.relative_pose`).
+
+    Returns ``(R, t, inlier mask, status)``: status ``ok``; ``rotation`` when the median
+    rotation-compensated parallax is below ``min_parallax_deg`` (then ``t`` is zero and ``R`` the
+    best rotation-only fit); ``failed`` (R None).
+    """
+    n = len(uv1)
+    if n < 8:
+        return None, None, np.zeros(n, bool), "failed"
+    f1 = bearings(normalize_points(uv1, K))
+    f2 = bearings(normalize_points(uv2, K))
+    R_rot, par = rotation_only_fit(f1, f2)
+    if float(np.median(par)) < min_parallax_deg:
+        return R_rot, np.zeros(3), par < 3.0 * max(float(np.median(par)), 0.05), "rotation"
+    try:
+        R, t, mask = relative_pose(uv1, uv2, K, threshold_px=threshold_px, min_parallax_deg=min_parallax_deg)
+    except GeometryError as e:
+        log.debug("essential_pose: %s", e)
+        if "rotation" in str(e):  # parallax too small against the epipolar noise
+            med = max(float(np.median(par)), 0.05)
+            return R_rot, np.zeros(3), par < 3.0 * med, "rotation"
+        return None, None, np.zeros(n, bool), "failed"
+    return np.asarray(R), np.asarray(t).reshape(3), np.asarray(mask, bool), "ok"

@@ -131,6 +131,15 @@ def inv_T(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def inv_se3(T: np.ndarray) -> np.ndarray:
+    """Inverse of one rigid 4x4 ``[[R, t], [0, 1]]``: ``[[R^T, -R^T t], [0, 1]]``, the fast per-frame
+    form (no Sim(3) scale, no batch); :func:`inv_T` is the general one."""
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
 se3_inverse = inv_T
 sim3_inverse = inv_T
 

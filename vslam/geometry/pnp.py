@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 from typing import Literal
 
+import cv2
 import numpy as np
 
 from vslam.errors import GeometryError
@@ -52,7 +53,6 @@ def _reproj_inliers(T, K, X, x, dist, threshold_px):
 
 
 def _to_T(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    import cv2
 
     return make_T(cv2.Rodrigues(np.asarray(rvec, float))[0], np.asarray(tvec, float).ravel())
 
@@ -164,3 +164,146 @@ def reprojection_errors(
     uv, z = project_points(T_cam_world, K, X_world, dist)
     err = np.linalg.norm(uv - np.asarray(x, float), axis=1)
     return np.where(z > 0, err, np.inf)
+
+
+# ----------------------------------------------------------------------------- tracking
+CHI2_2DOF = 5.991  # 95% chi-square quantiles (ORB-SLAM PoseOptimization thresholds)
+CHI2_3DOF = 7.815
+
+
+def _so3_exp_rodrigues(w: np.ndarray) -> np.ndarray:
+    R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
+    return R
+
+
+def pnp_ransac(
+    X_world: np.ndarray,
+    uv: np.ndarray,
+    K: np.ndarray,
+    T_cam_world_guess: np.ndarray | None = None,
+    reproj_px: float = 3.0,
+    iterations: int = 100,
+    refine_rounds: int = 2,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """PnP on undistorted pixels (:func:`solve_pnp`: LM from the guess when it
+    explains enough points, else RANSAC with P3P); returns ``(T_cam_world or None, inlier mask)``."""
+    n = len(X_world)
+    mask = np.zeros(n, dtype=bool)
+    if n < 6:
+        return None, mask
+    try:
+        T, m = solve_pnp(X_world, uv, K, T_cam_world_init=T_cam_world_guess, threshold_px=reproj_px,
+                         max_iters=iterations, refine_rounds=refine_rounds)
+        return np.asarray(T, dtype=float), np.asarray(m, dtype=bool)
+    except GeometryError:
+        return None, mask
+
+
+def _horizontal_rows(out: np.ndarray, a: np.ndarray, b: np.ndarray, x, y, z) -> None:
+    """``out (6, n)`` = d(u)/d(xi) of ``u = fx x / z + cx`` (or ``u_r = u - bf / z``) for
+    ``T <- exp(xi) T``: ``d(u)/d(Xc) [I, -[Xc]x]`` with ``a = du/dx``, ``b = du/dz`` (weighted)."""
+    out[0] = a
+    out[1] = 0.0
+    out[2] = b
+    np.multiply(b, y, out=out[3])
+    np.subtract(a * z, b * x, out=out[4])
+    np.multiply(-a, y, out=out[5])
+
+
+def _vertical_rows(out: np.ndarray, c: np.ndarray, d: np.ndarray, x, y, z) -> None:
+    """``out (6, n)`` = d(v)/d(xi) of ``v = fy y / z + cy``, ``c = dv/dy``, ``d = dv/dz`` (weighted)."""
+    out[0] = 0.0
+    out[1] = c
+    out[2] = d
+    np.subtract(d * y, c * z, out=out[3])
+    np.multiply(-d, x, out=out[4])
+    np.multiply(c, x, out=out[5])
+
+
+def refine_pose(
+    T_cam_world: np.ndarray,
+    X_world: np.ndarray,
+    uv: np.ndarray,
+    K: np.ndarray,
+    sigma: np.ndarray | None = None,
+    u_right: np.ndarray | None = None,
+    bf: float = 0.0,
+    rounds: int = 3,
+    iterations: int = 5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose-only Gauss-Newton with Huber weights on reprojection residuals ``(u, v)`` and, where
+    ``u_right`` is finite, the virtual right-camera residual ``u_r = u - bf / z`` (ORB-SLAM2's
+    stereo/RGB-D pose optimization, Mur-Artal & Tardos 2017, eq. (2)-(3)). Outliers are reclassified
+    each round by the chi-square test. Left perturbation ``T <- exp(xi) T``, ``xi = (rho, phi)``.
+
+    The Jacobian rows of all residuals fill one ``(6, 3n)`` array in place, so the normal
+    equations are one BLAS product per iteration.
+
+    Returns ``(T_cam_world, inlier mask)``.
+    """
+    n = len(X_world)
+    T = T_cam_world.copy()
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    info = np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2
+    has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
+    ur = np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0)
+    delta = np.where(has_r, np.sqrt(CHI2_3DOF), np.sqrt(CHI2_2DOF))
+    chi2 = np.where(has_r, CHI2_3DOF, CHI2_2DOF)
+    Xt = np.ascontiguousarray(np.asarray(X_world, float).T)  # (3, n): rows x, y, z
+    u_obs = np.ascontiguousarray(uv[:, 0], dtype=float)
+    v_obs = np.ascontiguousarray(uv[:, 1], dtype=float)
+    any_r = bool(has_r.any())
+    m = 3 if any_r else 2
+    A = np.empty((6, m * n))  # rows: d(residual)/d(xi_k), residuals u_1..u_n, v_1..v_n[, ur_1..ur_n]
+    r = np.empty(m * n)
+    inl = np.ones(n, dtype=bool)
+
+    def project(T):
+        Xc = T[:3, :3] @ Xt + T[:3, 3:4]
+        z = np.maximum(Xc[2], 1e-6)
+        iz = 1.0 / z
+        return Xc, z, iz, fx * Xc[0] * iz + cx, fy * Xc[1] * iz + cy
+
+    for _ in range(rounds):
+        for _ in range(iterations):
+            Xc, z, iz, u_hat, v_hat = project(T)
+            x, y = Xc[0], Xc[1]
+            ru = u_hat - u_obs
+            rv = v_hat - v_obs
+            rs = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
+            e = np.sqrt(info * (ru * ru + rv * rv + rs * rs))
+            w = info * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
+            w[~(inl & (Xc[2] > 0))] = 0.0
+            sw = np.sqrt(w)
+            a = fx * iz * sw
+            c = fy * iz * sw
+            b = -fx * x * iz * iz * sw
+            d = -fy * y * iz * iz * sw
+            _horizontal_rows(A[:, :n], a, b, x, y, z)
+            _vertical_rows(A[:, n:2 * n], c, d, x, y, z)
+            r[:n] = ru * sw
+            r[n:2 * n] = rv * sw
+            if any_r:
+                swr = sw * has_r
+                _horizontal_rows(A[:, 2 * n:], fx * iz * swr, (-fx * x * iz * iz + bf * iz * iz) * swr, x, y, z)
+                r[2 * n:] = rs * swr
+            H = A @ A.T
+            g = A @ r
+            try:
+                dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                break
+            dT = np.eye(4)
+            dT[:3, :3] = _so3_exp_rodrigues(dx[3:])
+            dT[:3, 3] = dx[:3]
+            T = dT @ T
+            if np.linalg.norm(dx) < 1e-5:
+                break
+        Xc, z, iz, u_hat, v_hat = project(T)
+        e2 = (u_hat - u_obs) ** 2 + (v_hat - v_obs) ** 2
+        e2 += np.where(has_r, ((u_hat - bf / z) - ur) ** 2, 0.0)
+        e2 *= info
+        inl = (e2 < chi2) & (Xc[2] > 0)
+        if inl.sum() < 6:
+            break
+    return T, inl

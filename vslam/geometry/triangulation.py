@@ -12,6 +12,7 @@ instead of raising; use :func:`good_triangulation_mask` to reject them.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from vslam.errors import GeometryError
@@ -182,3 +183,35 @@ def project_stereo(X_cam: np.ndarray, K: np.ndarray, baseline: float) -> np.ndar
     u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2]
     v = K[1, 1] * X[:, 1] / z + K[1, 2]
     return np.stack([u, v, u - K[0, 0] * baseline / z], axis=1)
+
+
+# ----------------------------------------------------------------------------- tracking (OpenCV DLT)
+def triangulate_dlt(
+    T_cam1_world: np.ndarray, T_cam2_world: np.ndarray, K: np.ndarray, uv1: np.ndarray, uv2: np.ndarray,
+) -> np.ndarray:
+    """Linear (DLT) two-view triangulation of undistorted pixels (Hartley & Zisserman 12.2);
+    returns world points ``(N, 3)``."""
+    P1 = K @ T_cam1_world[:3]
+    P2 = K @ T_cam2_world[:3]
+    Xh = cv2.triangulatePoints(P1, P2, uv1.T.astype(np.float64), uv2.T.astype(np.float64))
+    w = Xh[3]
+    w = np.where(np.abs(w) < 1e-12, 1e-12, w)
+    return (Xh[:3] / w).T
+
+
+def reprojection_error_depth(T_cam_world: np.ndarray, K: np.ndarray, X_world: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixel error (N,), depth (N,))`` of world points in a camera."""
+    Xc = X_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = Xc[:, 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
+    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
+    return np.hypot(u - uv[:, 0], v - uv[:, 1]), z
+
+
+def ray_parallax_deg(T_world_cam1: np.ndarray, T_world_cam2: np.ndarray, X_world: np.ndarray) -> np.ndarray:
+    """Angle at each point between the rays to the two camera centres."""
+    a = X_world - T_world_cam1[:3, 3]
+    b = X_world - T_world_cam2[:3, 3]
+    c = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-12)
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))

@@ -58,19 +58,19 @@ from typing import Callable
 
 import numpy as np
 
-from vslam.backend.config import PoseGraphConfig
-from vslam.backend.pose_graph import correct_points, optimize_pose_graph
-from vslam.frontend.local_map import guided_match, project_local_points
-from vslam.frontend.pose import inv_T
 from vslam.geometry.camera import PinholeCamera, stereo_bf
-from vslam.keyframe_queue import KeyframeQueue
+from vslam.geometry.lie import inv_se3
 from vslam.loop.config import LoopConfig
-from vslam.loop.database import KeyframeDatabase
 from vslam.loop.detector import LoopDetector
 from vslam.loop.verification import Features, Verified, verify
 from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
+from vslam.map.config import PoseGraphConfig
+from vslam.map.database import KeyframeDatabase
 from vslam.map.keyframe import KeyFrame
+from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.map import Map
+from vslam.map.matching import guided_match, project_local_points
+from vslam.map.pose_graph import correct_points, optimize_pose_graph
 
 log = logging.getLogger(__name__)
 
@@ -372,7 +372,7 @@ class LoopCloser:
             return False
         if max(ver.n_inliers, ver.n_ransac) < cc.confirm_min_inliers or ver.n_inliers < cc.confirm_min_map_inliers:
             return False
-        T_cam_world_q = inv_T(ver.T_world_cam)  # the query's corrected pose
+        T_cam_world_q = inv_se3(ver.T_world_cam)  # the query's corrected pose
         agree = 0
         for k in self._connected(kf.id)[: cc.confirm_neighbours]:
             other = self.map.keyframes.get(k)
@@ -414,7 +414,7 @@ class LoopCloser:
         prev = None
         for k in nodes:  # spanning tree: each keyframe to its predecessor in the segment
             if prev is not None:
-                edges.append((index[prev], index[k], inv_T(T_before[index[prev]]) @ T_before[index[k]]))
+                edges.append((index[prev], index[k], inv_se3(T_before[index[prev]]) @ T_before[index[k]]))
             prev = k
         qs, cs = set(q_group), set(c_group)
         for a in nodes:
@@ -423,10 +423,10 @@ class LoopCloser:
                     continue
                 if (a in qs and b in cs) or (a in cs and b in qs):
                     continue  # links across the loop are given by the loop edges below
-                edges.append((index[a], index[b], inv_T(T_before[index[a]]) @ T_before[index[b]]))
+                edges.append((index[a], index[b], inv_se3(T_before[index[a]]) @ T_before[index[b]]))
         T_match = self.map.keyframes[match_id].T_world_cam
         for k in q_group:  # loop edges: the candidate to every keyframe of the corrected query side
-            edges.append((index[match_id], index[k], inv_T(T_match) @ S_init[k], cc.loop_edge_information))
+            edges.append((index[match_id], index[k], inv_se3(T_match) @ S_init[k], cc.loop_edge_information))
         T_init = T_before.copy()
         for k in q_group:
             S = S_init[k]
@@ -479,7 +479,7 @@ class LoopCloser:
             self.map.update_covisibility(k)
         for cb in self.correction_listeners:
             cb(kf.id, T_q_before, kf.T_world_cam.copy())
-        dT = ver.T_world_cam @ inv_T(T_q_before)
+        dT = ver.T_world_cam @ inv_se3(T_q_before)
         rec = LoopRecord(
             query_kf=kf.id, match_kf=match_id, query_frame=kf.frame_index,
             match_frame=self.map.keyframes[match_id].frame_index, inliers=ver.n_inliers, score=round(score, 3),
@@ -511,7 +511,7 @@ class LoopCloser:
             s = float(np.cbrt(np.linalg.det(S[:3, :3])))
             T = S.copy()
             T[:3, :3] /= s
-            vis, proj, _ = project_local_points(store, c_pts[store.alive[c_pts]], inv_T(T), self.camera,
+            vis, proj, _ = project_local_points(store, c_pts[store.alive[c_pts]], inv_se3(T), self.camera,
                                                 check_distance=self.sensor != "mono")
             if len(vis) == 0:
                 continue

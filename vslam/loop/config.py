@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from vslam.errors import ConfigError
+from vslam.map.config import DatabaseConfig  # the keyframe database is in map/; re-exported here
 
 
 @dataclass(frozen=True)
@@ -36,42 +37,6 @@ class VocabularyConfig:
             raise ConfigError(
                 f"vocabulary direct_index_level={self.direct_index_level}: must be in 1..levels ({self.levels})"
             )
-
-
-@dataclass(frozen=True)
-class DatabaseConfig:
-    """Keyframe database query settings.
-
-    Attributes:
-        normalize_with: how raw scores are normalized: ``"max"`` divides by the best raw score of
-            the query against its excluded (covisible) keyframes, ``"min"`` by the lowest of those
-            (ORB-SLAM's ``minScore``), ``"none"`` keeps raw L1 scores.
-        subtract_baseline: subtract the query's chance-level score (the median raw score over the
-            non-excluded keyframes) from raw and reference scores before dividing. With a small
-            vocabulary (the embedded default has 10^4 words) two unrelated images share many
-            words and score ~0.13; without this the ratio barely separates loops from chance.
-            Set False for plain DBoW2/ORB-SLAM behaviour.
-        min_baseline_keyframes: with ``subtract_baseline``, scores are normalized only once at
-            least this many non-excluded keyframes give a baseline (before that, raw scores).
-        min_common_words_ratio: keep only keyframes that share at least this fraction of the
-            largest number of words any keyframe shares with the query (ORB-SLAM uses 0.8).
-        merge_every: pending (recently added) keyframes are merged into the compressed inverted
-            index once there are this many (or 1/16 of the merged ones, whichever is more).
-    """
-
-    normalize_with: str = "max"
-    subtract_baseline: bool = True
-    min_baseline_keyframes: int = 8
-    min_common_words_ratio: float = 0.0
-    merge_every: int = 32
-
-    def __post_init__(self) -> None:
-        if self.normalize_with not in ("max", "min", "none"):
-            raise ConfigError(f"database normalize_with={self.normalize_with!r}: use 'max', 'min' or 'none'")
-        if not 0.0 <= self.min_common_words_ratio <= 1.0:
-            raise ConfigError(f"database min_common_words_ratio={self.min_common_words_ratio}: must be in [0, 1]")
-        if self.merge_every < 1:
-            raise ConfigError(f"database merge_every={self.merge_every}: must be >= 1")
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from vslam.loop.config import LoopDetectorConfig
-from vslam.loop.database import KeyframeDatabase
+from vslam.map.database import KeyframeDatabase
 from vslam.loop.vocabulary import BowVector
 
 log = logging.getLogger(__name__)

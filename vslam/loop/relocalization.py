@@ -35,7 +35,7 @@ import numpy as np
 
 from vslam.geometry.camera import PinholeCamera
 from vslam.loop.config import RelocalizationConfig
-from vslam.loop.database import KeyframeDatabase
+from vslam.map.database import KeyframeDatabase
 from vslam.loop.verification import Features, verify
 from vslam.loop.vocabulary import Vocabulary
 from vslam.map.map import Map

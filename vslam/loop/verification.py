@@ -5,7 +5,7 @@ Shared by loop closing (query keyframe vs the candidate keyframe's neighbourhood
 relocalization (a lost frame vs a candidate keyframe). Follows ORB-SLAM (Mur-Artal et al., T-RO
 2015): ``SearchByBoW`` -> ``Sim3Solver`` (Horn 1987 closed form inside RANSAC; here
 :func:`vslam.geometry.align.align_points`, Umeyama 1991) -> ``SearchByProjection`` -> pose
-optimization (:func:`vslam.frontend.pose.refine_pose`, Huber-weighted Gauss-Newton with the
+optimization (:func:`vslam.geometry.pnp.refine_pose`, Huber-weighted Gauss-Newton with the
 chi-square inlier test).
 """
 from __future__ import annotations
@@ -17,11 +17,12 @@ import numpy as np
 
 from vslam.errors import GeometryError
 from vslam.features.match import match_descriptors
-from vslam.frontend.local_map import guided_match, project_local_points
-from vslam.frontend.pose import inv_T, refine_pose
 from vslam.geometry.align import align_points
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
+from vslam.geometry.pnp import refine_pose
 from vslam.map.mappoint import MapPointStore
+from vslam.map.matching import guided_match, project_local_points
 
 log = logging.getLogger(__name__)
 
@@ -197,7 +198,7 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
                 T_wc[:3, :3] /= scale
                 U, _, Vt = np.linalg.svd(T_wc[:3, :3])
                 T_wc[:3, :3] = U @ Vt
-                T_cw = inv_T(T_wc)
+                T_cw = inv_se3(T_wc)
                 n_ransac = int(inl.sum())
                 sel = np.flatnonzero(ok)[inl]
                 kp, pids = kp[sel], pids[sel]
@@ -230,8 +231,8 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
         T_cw, kp, pids = _refine(feat, store, group_pts, camera, T_cw, kp, pids, radius, scale_factor, bf,
                                  check_distance=not mono)
         if len(kp) < 6:  # too few map points to refine: the RANSAC pose, no map-point inliers
-            return Verified(T_world_cam=inv_T(T_cw_ransac), scale=scale, kp_idx=kp[:0], point_ids=pids[:0],
+            return Verified(T_world_cam=inv_se3(T_cw_ransac), scale=scale, kp_idx=kp[:0], point_ids=pids[:0],
                             n_inliers=0, n_ransac=n_ransac)
     log.debug("verify: %d inliers after guided matching", len(kp))
-    return Verified(T_world_cam=inv_T(T_cw), scale=scale, kp_idx=kp, point_ids=pids, n_inliers=len(kp),
+    return Verified(T_world_cam=inv_se3(T_cw), scale=scale, kp_idx=kp, point_ids=pids, n_inliers=len(kp),
                     n_ransac=n_ransac)

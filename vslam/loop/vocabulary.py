@@ -40,6 +40,7 @@ import numpy as np
 
 from vslam.errors import ConfigError, MapFormatError, VslamError
 from vslam.loop.config import VocabularyConfig
+from vslam.map.database import BowVector  # the vector type the keyframe database indexes
 
 log = logging.getLogger(__name__)
 
@@ -69,28 +70,6 @@ def hamming_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- BoW vector
-@dataclass(frozen=True)
-class BowVector:
-    """A sparse, L1-normalized bag-of-words vector.
-
-    Attributes:
-        words: ``(M,)`` int32 word ids, strictly increasing.
-        values: ``(M,)`` float64 tf-idf values, positive, summing to 1 (empty vector: no entries).
-    """
-
-    words: np.ndarray
-    values: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.words.shape[0])
-
-    def to_dense(self, n_words: int) -> np.ndarray:
-        """The vector as a dense ``(n_words,)`` array."""
-        dense = np.zeros(n_words)
-        dense[self.words] = self.values
-        return dense
-
-
 def l1_score(a: BowVector, b: BowVector) -> float:
     """L1 score of eq. (3): ``1 - 0.5 |a - b|_1 = sum_i min(a_i, b_i)`` for L1-normalized vectors, in [0, 1]."""
     common, ia, ib = np.intersect1d(a.words, b.words, assume_unique=True, return_indices=True)

@@ -47,9 +47,9 @@ from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.mappoint import MapPointStore
 
-if TYPE_CHECKING:  # map/ must not import loop/ at run time (loop sits below map in the pipeline)
-    from vslam.loop.config import DatabaseConfig
-    from vslam.loop.database import KeyframeDatabase
+if TYPE_CHECKING:
+    from vslam.map.config import DatabaseConfig
+    from vslam.map.database import KeyframeDatabase
 
 log = logging.getLogger(__name__)
 
@@ -472,7 +472,7 @@ def load_map(
 
     database = None
     if manifest.get("database"):
-        from vslam.loop.database import KeyframeDatabase  # loop/ sits below map/: import on demand
+        from vslam.map.database import KeyframeDatabase
 
         db_name = manifest["database"]
         if db_name not in files:

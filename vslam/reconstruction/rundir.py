@@ -82,7 +82,7 @@ def reconstruct_run(
         paths (str), the settings used and timings.
     """
     from vslam.datasets import KINDS, open_dataset
-    from vslam.eval.trajectory import read_tum
+    from vslam.trajectory import read_tum
 
     run_dir = Path(run_dir)
     stats = _read_stats(run_dir)

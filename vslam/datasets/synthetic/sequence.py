@@ -16,7 +16,7 @@ from vslam.datasets.frame import Frame
 from vslam.datasets.synthetic.renderer import Renderer, default_renderer
 from vslam.datasets.synthetic.trajectory import make_path
 from vslam.errors import ConfigError
-from vslam.eval.trajectory import Trajectory
+from vslam.trajectory import Trajectory
 from vslam.geometry.camera import PinholeCamera
 
 PATH_KINDS = ("loop", "forward")

@@ -22,7 +22,7 @@ import yaml
 
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
 from vslam.errors import DatasetError
-from vslam.eval.trajectory import write_tum
+from vslam.trajectory import write_tum
 
 log = logging.getLogger(__name__)
 

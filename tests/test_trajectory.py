@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vslam.errors import TrajectoryError
-from vslam.eval.trajectory import (
+from vslam.trajectory import (
     Trajectory, detect_format, read_euroc, read_kitti, read_trajectory, read_tum, write_euroc,
     write_kitti, write_trajectory, write_tum,
 )

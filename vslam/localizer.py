@@ -28,9 +28,10 @@ from scipy.spatial import cKDTree
 
 from vslam.errors import ConfigError
 from vslam.features import create_detector
-from vslam.frontend.local_map import brute_force_match, guided_match, project_local_points
+from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
-from vslam.frontend.pose import inv_T, pnp_ransac, refine_pose
+from vslam.geometry.lie import inv_se3 as inv_T
+from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
 

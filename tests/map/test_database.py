@@ -1,4 +1,5 @@
-"""Inverted-index keyframe database: exact L1 scores, normalization, erase, save/load, real retrieval."""
+"""Inverted-index keyframe database: exact L1 scores, normalization, erase, save/load (real retrieval
+with the vocabulary: tests/loop/test_database_retrieval.py)."""
 from __future__ import annotations
 
 import time
@@ -7,9 +8,9 @@ import numpy as np
 import pytest
 
 from vslam.errors import MapFormatError
-from vslam.loop.config import DatabaseConfig
-from vslam.loop.database import KeyframeDatabase
-from vslam.loop.vocabulary import BowVector, l1_score
+from vslam.loop.vocabulary import l1_score
+from vslam.map.config import DatabaseConfig
+from vslam.map.database import BowVector, KeyframeDatabase
 
 N_WORDS = 10_000
 
@@ -120,22 +121,3 @@ def test_query_over_1000_keyframes_is_fast():
         db.query(query, 10, exclude_ids=range(990, 1000))
         best = min(best, time.perf_counter() - t0)
     assert best < 0.010, f"query over 1000 keyframes took {best * 1e3:.1f} ms (target 5 ms)"
-
-
-@pytest.mark.shared
-def test_redkitchen_revisit_is_retrieved(redkitchen, vocabulary):
-    """7-Scenes: frame 946 returns to frame 248 (1.2 cm); keyframes are every 10th frame 0-900."""
-    desc = redkitchen["descriptors"]
-    db = KeyframeDatabase(vocabulary.n_words)
-    for i in range(0, 901, 10):
-        db.add(i, vocabulary.transform(desc[i])[0])
-    query = vocabulary.transform(desc[946])[0]
-    near = [i for i in db.keyframe_ids if abs(i - 946) <= 30]
-    results = db.query(query, 5, exclude_ids=near)
-    assert abs(results[0][0] - 248) <= 15, results
-    # all of the top three lie on the revisited stretch (frames 230-270)
-    assert all(230 <= k <= 270 for k, _ in results[:3]), results
-    # a frame in the middle of a stretch finds its temporal neighbours when they are not excluded
-    top = db.query(vocabulary.transform(desc[503])[0], 3)
-    assert abs(top[0][0] - 503) <= 10, top
-    assert all(abs(k - 503) <= 20 for k, _ in top[:2]), top

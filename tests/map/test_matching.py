@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.frontend.local_map import descriptor_distance, guided_match, project_local_points
+from vslam.map.matching import descriptor_distance, guided_match, project_local_points
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.mappoint import MapPointStore
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import threading
 
-from vslam.keyframe_queue import KeyframeQueue
+from vslam.map.keyframe_queue import KeyframeQueue
 
 
 def test_deterministic_mode_runs_inline_in_order():

@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import zipfile
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
@@ -34,14 +35,34 @@ import numpy as np
 import scipy.sparse as sp
 
 from vslam.errors import MapFormatError, VslamError
-from vslam.loop.config import DatabaseConfig
-from vslam.loop.vocabulary import BowVector
+from vslam.map.config import DatabaseConfig
 
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "vslam-keyframe-database"
 FORMAT_VERSION = 1
 
+
+@dataclass(frozen=True)
+class BowVector:
+    """A sparse, L1-normalized bag-of-words vector.
+
+    Attributes:
+        words: ``(M,)`` int32 word ids, strictly increasing.
+        values: ``(M,)`` float64 tf-idf values, positive, summing to 1 (empty vector: no entries).
+    """
+
+    words: np.ndarray
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.words.shape[0])
+
+    def to_dense(self, n_words: int) -> np.ndarray:
+        """The vector as a dense ``(n_words,)`` array."""
+        dense = np.zeros(n_words)
+        dense[self.words] = self.values
+        return dense
 
 class KeyframeDatabase:
     """BoW vectors of keyframes with an inverted index.

@@ -1,4 +1,5 @@
-"""The local map: which map points may be seen from a predicted pose, and guided matching.
+"""Matching by projection, shared by tracking, local mapping, loop closing and localization:
+which map points may be seen from a predicted pose, and guided matching of those to keypoints.
 
 Projection with frustum, distance-range and viewing-angle tests follows ORB-SLAM's
 ``SearchLocalPoints`` / ``isInFrustum`` (Mur-Artal et al. 2015, sec. V-D); everything is one

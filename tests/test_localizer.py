@@ -9,8 +9,8 @@ from vslam.api import run_path
 from vslam.datasets import open_dataset
 from vslam.datasets.frame import Frame
 from vslam.datasets.synthetic import SyntheticConfig, render_sequence
-from vslam.eval.trajectory import Trajectory
-from vslam.frontend.localizer import LocalizeResult, Localizer, LocalizerConfig
+from vslam.trajectory import Trajectory
+from vslam.localizer import LocalizeResult, Localizer, LocalizerConfig
 from vslam.geometry.umeyama import umeyama
 from vslam.map.io import load_map
 

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.frontend.pose import (
-    align_ransac, essential_pose, inv_T, kabsch_batch, parallax_deg, refine_pose, triangulate,
-)
-from vslam.geometry.lie import se3_exp
+from vslam.geometry.align import align_ransac, kabsch_batch
+from vslam.geometry.epipolar import essential_pose
+from vslam.geometry.lie import inv_se3, se3_exp
+from vslam.geometry.pnp import refine_pose
+from vslam.geometry.triangulation import ray_parallax_deg, triangulate_dlt
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -28,7 +29,7 @@ def test_refine_pose_converges_and_rejects_outliers():
     for u_right in (None, ur):
         T_est, inl = refine_pose(T0, X, uv_noisy, K, None, u_right, 40.0)
         assert inl[:30].sum() == 0 and inl[30:].mean() > 0.95
-        assert np.abs(inv_T(T_est)[:3, 3] - inv_T(T)[:3, 3]).max() < 5e-3
+        assert np.abs(inv_se3(T_est)[:3, 3] - inv_se3(T)[:3, 3]).max() < 5e-3
 
 
 def test_align_ransac_recovers_rigid_motion():
@@ -69,6 +70,6 @@ def test_triangulate_and_parallax():
     T2 = se3_exp(np.array([-0.5, 0, 0, 0, 0.02, 0]))
     x1, _ = _project(T1, X)
     x2, _ = _project(T2, X)
-    np.testing.assert_allclose(triangulate(T1, T2, K, x1, x2), X, atol=1e-6)
-    par = parallax_deg(inv_T(T1), inv_T(T2), X)
+    np.testing.assert_allclose(triangulate_dlt(T1, T2, K, x1, x2), X, atol=1e-6)
+    par = ray_parallax_deg(inv_se3(T1), inv_se3(T2), X)
     assert np.all(par > 4) and np.all(par < 12)

@@ -23,7 +23,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from vslam.backend.config import PoseGraphConfig
+from vslam.map.config import PoseGraphConfig
 from vslam.errors import GeometryError
 
 LOG = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vslam.backend.drift_demo import ate_rmse, close_loop, simulate_loop
-from vslam.backend.pose_graph import correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix
+from vslam.map.pose_graph import correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix
 from vslam.backend.schur_lm import so3_exp
 from vslam.errors import GeometryError
 
