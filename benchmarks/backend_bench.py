@@ -18,7 +18,8 @@ from vslam.backend.bundle_adjustment import local_bundle_adjustment
 from vslam.backend.config import LocalBAConfig
 from vslam.backend.drift_demo import simulate_loop
 from vslam.backend.ekf import PoseEKF
-from vslam.backend.pose_graph import optimize_pose_graph, sim3_matrix
+from vslam.geometry.lie import make_sim3
+from vslam.map.pose_graph import optimize_pose_graph
 from vslam.backend.synthetic import make_ba_problem
 
 
@@ -53,7 +54,7 @@ def _pose_graph(n: int, sim3: bool, repeats: int) -> dict:
     sim = simulate_loop(n_poses=n, scale_drift=0.002 if sim3 else 0.0, seed=0)
     edges = [(k, k + 1, sim.T_rel[k]) for k in range(n - 1)]
     T_loop = np.linalg.inv(sim.T_true[-1]) @ sim.T_true[0]
-    edges.append((n - 1, 0, sim3_matrix(T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3], sim.scale[-1]) if sim3 else T_loop))
+    edges.append((n - 1, 0, make_sim3(sim.scale[-1], T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3]) if sim3 else T_loop))
     stats, res = _timed(lambda: optimize_pose_graph(sim.T_odom, edges, sim3=sim3), repeats)
     stats.update(nodes=n, edges=len(edges), sim3=sim3, iterations=res.iterations)
     return stats

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam.loop.database import KeyframeDatabase
+from vslam.map.database import KeyframeDatabase
 from vslam.loop.vocabulary import DEFAULT_VOCABULARY_PATH, BowVector, Vocabulary
 
 

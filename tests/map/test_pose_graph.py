@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from vslam.backend.drift_demo import ate_rmse, close_loop, simulate_loop
-from vslam.map.pose_graph import correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix
+from vslam.geometry.lie import make_sim3, sim3_decompose
+from vslam.map.pose_graph import correct_points, optimize_pose_graph
 from vslam.backend.schur_lm import so3_exp
 from vslam.errors import GeometryError
 
@@ -25,7 +26,7 @@ def test_sim3_corrects_scale_drift():
     sim = simulate_loop(n_poses=100, noise=0.5, scale_drift=0.005, seed=1)
     assert sim.scale[-1] > 1.6  # the local map at the end is 64 % too large
     S = close_loop(sim, sim3=True)
-    _, _, s_end = sim3_decompose(S[-1])
+    s_end, _, _ = sim3_decompose(S[-1])
     # the end node's scale undoes the drift: s_end * drift = 1 within 2 %
     assert abs(s_end * sim.scale[-1] - 1.0) < 0.02, s_end * sim.scale[-1]
     before = ate_rmse(sim.T_odom, sim.T_true)
@@ -70,8 +71,8 @@ def test_small_chain_is_exact_and_information_weights_count():
 
 def test_sim3_helpers_round_trip():
     R = so3_exp(np.array([[0.1, -0.2, 0.3]]))[0]
-    S = sim3_matrix(R, np.array([1.0, 2.0, 3.0]), 1.7)
-    R2, t2, s2 = sim3_decompose(S)
+    S = make_sim3(1.7, R, np.array([1.0, 2.0, 3.0]))
+    s2, R2, t2 = sim3_decompose(S)
     np.testing.assert_allclose(R2, R, atol=1e-12)
     np.testing.assert_allclose(t2, [1.0, 2.0, 3.0])
     assert abs(s2 - 1.7) < 1e-12

@@ -7,13 +7,11 @@ from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bund
 from vslam.backend.config import EKFConfig, GlobalBAConfig, LocalBAConfig, PoseGraphConfig
 from vslam.backend.drift_demo import run_drift_demo
 from vslam.backend.ekf import EKFState, PoseEKF, pose_covariance_from_inliers
-from vslam.map.pose_graph import (
-    PoseGraphResult, correct_points, optimize_pose_graph, sim3_decompose, sim3_matrix,
-)
+from vslam.map.pose_graph import PoseGraphResult, correct_points, optimize_pose_graph
 from vslam.backend.problem import BAProblem, BAResult
 
 __all__ = [
     "BAProblem", "BAResult", "EKFConfig", "EKFState", "GlobalBAConfig", "LocalBAConfig", "PoseEKF",
     "PoseGraphConfig", "PoseGraphResult", "correct_points", "global_bundle_adjustment", "local_bundle_adjustment",
-    "optimize_pose_graph", "pose_covariance_from_inliers", "run_drift_demo", "sim3_decompose", "sim3_matrix",
+    "optimize_pose_graph", "pose_covariance_from_inliers", "run_drift_demo",
 ]

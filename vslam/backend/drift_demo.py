@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam.map.pose_graph import optimize_pose_graph, sim3_matrix
+from vslam.map.pose_graph import optimize_pose_graph
 from vslam.backend.schur_lm import so3_exp
 from vslam.errors import ConfigError
-from vslam.geometry.lie import inv_T
+from vslam.geometry.lie import inv_T, make_sim3
 from vslam.geometry.umeyama import umeyama
 
 LOG = logging.getLogger(__name__)
@@ -96,7 +96,7 @@ def close_loop(sim: LoopSimulation, sim3: bool = False) -> np.ndarray:
     T_loop = inv_T(sim.T_true[-1]) @ sim.T_true[0]
     if sim3:
         # the loop measures node 0 in the frame of node N-1, whose local map is scale[-1] larger
-        S_loop = sim3_matrix(T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3], sim.scale[-1])
+        S_loop = make_sim3(sim.scale[-1], T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3])
         edges.append((n - 1, 0, S_loop, 100.0 * info))
     else:
         edges.append((n - 1, 0, T_loop, 100.0 * info))

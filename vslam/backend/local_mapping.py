@@ -48,6 +48,7 @@ from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bund
 from vslam.backend.config import BackendConfig
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
+from vslam.map.fusion import apply_remap, new_remap
 from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.mappoint import unique_ids
@@ -329,8 +330,7 @@ class LocalMapper:
         if not neighbours:
             return
         store = self.map.points
-        remap = np.arange(len(store) + 1, dtype=np.int64)
-        remap[-1] = -1
+        remap = new_remap(len(store))
         # neighbours' points -> new keyframe
         pts = self.map.local_point_ids([k.id for k in neighbours])
         n_fused = self._fuse_into(kf, pts, remap)
@@ -340,13 +340,7 @@ class LocalMapper:
         for nb in neighbours:
             n_fused += self._fuse_into(nb, own, remap)
         if n_fused:
-            moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
-            # follow chains (a -> b -> c) to the final survivor
-            for _ in range(4):
-                remap[moved] = remap[remap[moved]]
-            for k in self.map.keyframes.values():
-                pid = k.point_ids
-                k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+            apply_remap(self.map.keyframes.values(), remap)
         self.map.update_covisibility(kf_id)
         self.counts["fused_points"] = self.counts.get("fused_points", 0) + n_fused
 

@@ -66,6 +66,7 @@ from vslam.loop.verification import Features, Verified, verify
 from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
 from vslam.map.config import PoseGraphConfig
 from vslam.map.database import KeyframeDatabase
+from vslam.map.fusion import apply_remap, new_remap
 from vslam.map.keyframe import KeyFrame
 from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.map import Map
@@ -497,8 +498,7 @@ class LoopCloser:
         query-side points removed."""
         store = self.map.points
         n = len(store)
-        remap = np.arange(n + 1, dtype=np.int64)
-        remap[-1] = -1
+        remap = new_remap(n)
         n_fused = self._assign(kf, ver.kp_idx, ver.point_ids, remap)
         c_pts = self.map.local_point_ids(c_group)
         for k in q_group:
@@ -519,12 +519,7 @@ class LoopCloser:
                                     self.config.closing.fuse_radius_px, True, 50.0, 0.9)
             n_fused += self._assign(other, kp, vis[m], remap)
         if n_fused:
-            moved = np.flatnonzero(remap[:-1] != np.arange(n))
-            for _ in range(4):
-                remap[moved] = remap[remap[moved]]
-            for k in self.map.keyframes.values():
-                pid = k.point_ids
-                k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+            apply_remap(self.map.keyframes.values(), remap)
         return n_fused
 
     def _assign(self, kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:

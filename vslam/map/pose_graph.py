@@ -25,6 +25,7 @@ import numpy as np
 
 from vslam.map.config import PoseGraphConfig
 from vslam.errors import GeometryError
+from vslam.geometry.lie import make_sim3, sim3_decompose
 
 LOG = logging.getLogger(__name__)
 
@@ -43,33 +44,16 @@ class PoseGraphResult:
     time_s: float
 
 
-def sim3_matrix(R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
-    """``[s R, t; 0, 1]`` as a 4x4 array."""
-    S = np.eye(4)
-    S[:3, :3] = s * np.asarray(R)
-    S[:3, 3] = t
-    return S
-
-
-def sim3_decompose(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Inverse of :func:`sim3_matrix`: ``(R, t, s)`` with ``s = det(S[:3, :3]) ** (1/3)``."""
-    S = np.asarray(S, dtype=float)
-    s = float(np.cbrt(np.linalg.det(S[:3, :3])))
-    if not s > 0:
-        raise GeometryError(f"Sim(3) matrix has a non-positive scale (det {np.linalg.det(S[:3, :3]):.3g})")
-    return S[:3, :3] / s, S[:3, 3].copy(), s
-
-
 def _to_gtsam_sim3(S: np.ndarray):
     import gtsam
 
-    R, t, s = sim3_decompose(S)
+    s, R, t = sim3_decompose(S)
     U, _, Vt = np.linalg.svd(R)
     return gtsam.Similarity3(gtsam.Rot3(U @ Vt), t / s, s)  # GTSAM maps p -> s (R p + t_g)
 
 
 def _from_gtsam_sim3(S) -> np.ndarray:
-    return sim3_matrix(S.rotation().matrix(), S.scale() * np.asarray(S.translation()), S.scale())
+    return make_sim3(S.scale(), S.rotation().matrix(), S.scale() * np.asarray(S.translation()))
 
 
 def _noise(info: np.ndarray | float | None, dim: int, config: PoseGraphConfig):
