@@ -9,6 +9,7 @@ listing the valid keys.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import types
 import typing
 from pathlib import Path
@@ -17,6 +18,9 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 import yaml
 
 from vslam.errors import ConfigError
+from vslam.param import doc_of
+
+log = logging.getLogger(__name__)
 
 
 def to_dict(cfg: Any) -> dict:
@@ -102,6 +106,7 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
     base = base if base is not None else cls()
     hints = get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
+    data = _nest_flat_keys(cls, data, prefix)
     unknown = set(data) - names
     if unknown:
         raise ConfigError(
@@ -119,6 +124,89 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
         return dataclasses.replace(base, **changes)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: {exc}") from None
+
+
+def flat_key_map(cls: type) -> dict[str, tuple[str, str]]:
+    """Old flat keys of ``cls`` -> (section, key) of the nested section that replaced them.
+
+    Derived from the ``flat_prefixes`` of each :func:`vslam.param.section` field: a section ``s``
+    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``.
+    """
+    out: dict[str, tuple[str, str]] = {}
+    for f in dataclasses.fields(cls):
+        for prefix in f.metadata.get("flat_prefixes", ()):
+            for g in dataclasses.fields(f.default_factory):  # type: ignore[arg-type]
+                out.setdefault(prefix + g.name, (f.name, g.name))
+    return out
+
+
+def _nest_flat_keys(cls: type, data: dict, prefix: str) -> dict:
+    """Move old flat keys (``frontend.kf_max_frames``) to their nested section, with a warning."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    old = [k for k in data if k not in names]
+    if not old:
+        return data
+    mapping = flat_key_map(cls)
+    out = dict(data)
+    for key in old:
+        if key not in mapping:
+            continue
+        sec, name = mapping[key]
+        value = out.pop(key)
+        target = out.get(sec)
+        if target is None:
+            target = out[sec] = {}
+        elif not isinstance(target, dict):
+            continue
+        else:
+            target = out[sec] = dict(target)
+        target.setdefault(name, value)
+        log.warning("setting %s%s is deprecated; use %s%s.%s", prefix, key, prefix, sec, name)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One leaf setting: its dotted key, default value, type and one-line doc."""
+
+    key: str
+    default: Any
+    type: str
+    doc: str
+
+
+def _type_name(tp: Any) -> str:
+    if get_origin(tp) is Literal:
+        return "|".join(str(a) for a in get_args(tp))
+    name = getattr(tp, "__name__", None)
+    return name if name and get_origin(tp) is None else str(tp).replace("typing.", "")
+
+
+def iter_settings(cls: type, prefix: str = "") -> list[Setting]:
+    """Every leaf setting of the dataclass tree ``cls`` (dotted keys, defaults of ``cls()``)."""
+    out = []
+    base = cls()
+    hints = get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        value = getattr(base, f.name)
+        if dataclasses.is_dataclass(value):
+            out += iter_settings(type(value), f"{prefix}{f.name}.")
+        else:
+            out.append(Setting(prefix + f.name, value, _type_name(hints[f.name]), doc_of(f)))
+    return out
+
+
+def iter_sections(cls: type, prefix: str = "") -> list[tuple[str, str]]:
+    """(dotted key, doc) of every nested section of ``cls``: its field doc, else its class docstring."""
+    out = []
+    base = cls()
+    for f in dataclasses.fields(cls):
+        value = getattr(base, f.name)
+        if dataclasses.is_dataclass(value):
+            doc = doc_of(f) or (type(value).__doc__ or "").strip().splitlines()[0]
+            out.append((prefix + f.name, doc))
+            out += iter_sections(type(value), f"{prefix}{f.name}.")
+    return out
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

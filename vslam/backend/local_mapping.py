@@ -124,7 +124,7 @@ class LocalMapper:
         # (System re-anchors the tracker's motion model on it, ORB-SLAM's UpdateLastFrame)
         self.correction_listeners: list = []
         # RGB-D: {kf_id: DenseLink} from the tracker's dense alignments, constraints in local BA
-        # (vslam.backend.dense_links; filled by the System when frontend.dense_links is on)
+        # (vslam.backend.dense_links; filled by the System when frontend.dense.links is on)
         self.dense_links: dict = {}
 
     # ------------------------------------------------------------------ feeding
