@@ -38,6 +38,12 @@ class TrackingConfig:
     min_inliers: int = param(20, "fewer pose inliers than this means the frame is lost")
     essential_px: float = param(1.0, "2D-2D (essential matrix) RANSAC threshold in pixels")
     max_lost_frames: int = param(3, "after this many consecutive lost frames, re-initialize a new map segment")
+    enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search")
+    second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers")
+    prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers")
+    align_iterations: int = param(100, "3D-3D RANSAC iterations")
+    align_refine_iterations: int = param(30, "3D-3D RANSAC iterations when only refining a pose")
+    align_stereo_disparity_px: float = param(2.0, "stereo 3D-3D threshold is at least the depth error of this disparity error, pixels")
 
 
 @dataclass(frozen=True)
@@ -48,6 +54,9 @@ class MatchingConfig:
     search_radius_lost_px: float = param(30.0, "wider guided matching radius when few matches were found, pixels")
     max_descriptor_distance: float = param(64.0, "Hamming bound of a match (ORB); float descriptors use the ratio only")
     match_ratio: float = param(0.9, "best / second-best descriptor distance ratio in guided matching")
+    brute_force_ratio: float = param(0.8, "ratio test of the brute-force matching to the whole local map (no pose prior)")
+    refine_radius_min_px: float = param(4.0, "second guided matching after the pose: radius max(this, refine_radius_factor * tracking.pnp_reproj_px)")
+    refine_radius_factor: float = param(1.5, "second guided matching radius in units of tracking.pnp_reproj_px")
 
 
 @dataclass(frozen=True)
@@ -58,6 +67,9 @@ class KLTTrackingConfig:
     max_tracks: int = param(1000, "re-detection tops the tracks up to this many")
     window: int = param(15, "KLT window side in pixels")
     levels: int = param(3, "KLT pyramid levels above the base image")
+    retry_ratio: float = param(0.5, "when fewer than this ratio of the tracks survive a predicted flow, track again from zero flow")
+    min_mapped_ratio: float = param(0.5, "force a keyframe when fewer than this ratio of min_tracks tracks have a map point")
+    mask_min_radius_px: int = param(8, "re-detection keeps at least this distance from existing tracks, pixels (or half a feature cell)")
 
 
 @dataclass(frozen=True)
@@ -66,6 +78,12 @@ class TwoViewConfig:
 
     depth_scale_only: bool = param(False, "with depth: keep the essential matrix's translation direction, take only its scale from depth")
     min_parallax_deg: float = param(1.0, "monocular: below this parallax the reference frame is kept (translation unobservable)")
+    match_ratio: float = param(0.8, "ratio test of the frame-to-reference descriptor matching")
+    advance_ratio: float = param(0.5, "the reference frame advances when fewer than this ratio of its keypoints are matched")
+    advance_min_inliers_factor: int = param(4, "... or fewer than this many times tracking.min_inliers")
+    max_reproj_px: float = param(2.0, "monocular: triangulated points (relative scale) need reprojection errors below this, pixels")
+    min_point_parallax_deg: float = param(0.2, "monocular: triangulated points (relative scale) need this parallax, degrees")
+    scale_min_points: int = param(8, "monocular: points common with the last pair needed to carry the scale over")
 
 
 @dataclass(frozen=True)
@@ -81,6 +99,9 @@ class KeyframesConfig:
     # correction falls short (error /3.8 instead of /5): kept at 0.7.
     tracked_ratio_mono: float = param(0.7, "the same tracked-points ratio for monocular")
     translation_m: float = param(0.0, "insert when moved farther than this from the reference keyframe, metres (0: off)")
+    # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
+    close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...")
+    close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points")
 
 
 @dataclass(frozen=True)
@@ -101,6 +122,9 @@ class MonoInitConfig:
     min_parallax_deg: float = param(1.0, "the 50th largest point parallax must exceed this (ORB-SLAM), degrees")
     rotation_parallax_deg: float = param(0.3, "median rotation-compensated parallax below this is pure rotation (never initializes)")
     max_frames: int = param(30, "restart the reference frame after this many frames without success")
+    match_ratio: float = param(0.9, "ratio test of the matching to the reference frame")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the matching to the reference frame (ORB)")
+    min_depth_points: int = param(50, "stereo/RGB-D: a map starts on a frame with max(2 * tracking.min_inliers, this) points with depth")
 
 
 @dataclass(frozen=True)
@@ -116,6 +140,8 @@ class MonoMappingConfig:
     # (odometry alone) the fewer, unrefined points drift worse: 07 0.276 -> 0.343.
     min_parallax_deg: float = param(1.15, "new points need at least this parallax between their two keyframes, degrees")
     triangulation_keyframes: int = param(3, "a new keyframe triangulates with this many previous ones")
+    match_ratio: float = param(0.8, "ratio test of the keypoint matching between keyframes")
+    max_reproj_sigmas: float = param(2.45, "new points need reprojection errors below this many octave sigmas (sqrt of chi2 5.991)")
 
 
 @dataclass(frozen=True)
@@ -129,6 +155,8 @@ class DenseConfig:
     refine_max_inliers: int = param(150, "feature poses on fewer inliers than this are refined densely")
     refine_downsample: int = param(2, "dense alignment runs on images reduced this many times (1: full resolution)")
     links: bool = param(True, "keyframes posed by dense alignment keep that relative pose in local BA (vslam.backend.dense_links)")
+    max_depth: float = param(6.0, "metres; dense alignment and dense links use depths up to min(depth.max_depth, this)")
+    doubtful_agreement: float = param(0.9, "a feature pose whose depths agree less than this is also refined from the prediction and from no motion")
 
 
 @dataclass(frozen=True)

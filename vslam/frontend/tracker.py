@@ -194,7 +194,7 @@ class Tracker:
             return
         from vslam.backend.dense_links import DenseLink, sample_depth_grid
 
-        uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.depth.max_depth, 6.0))
+        uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.depth.max_depth, self.cfg.dense.max_depth))
         if len(z):
             self.dense_links[kf_id] = DenseLink(kf_id, prev_kf_id, T_prev_cur.copy(), uv, z)
 
@@ -222,7 +222,7 @@ class Tracker:
                     flow = np.median(init[has] - prev.uv[has], axis=0)
                     init[~has] += flow
             uv, ok = klt_track(self.prev_gray, gray, prev.uv, init, cfg.klt.window, cfg.klt.levels)
-            if init is not None and ok.sum() < 0.5 * len(prev):  # a bad prediction: retry from zero flow
+            if init is not None and ok.sum() < self.cfg.klt.retry_ratio * len(prev):  # a bad prediction: retry from zero flow
                 uv2, ok2 = klt_track(self.prev_gray, gray, prev.uv, None, cfg.klt.window, cfg.klt.levels)
                 if ok2.sum() > ok.sum():
                     uv, ok = uv2, ok2
@@ -301,7 +301,7 @@ class Tracker:
     def _initialize(self, frame: Frame, gray: np.ndarray, obs: Observation, klt_prev_idx) -> TrackOutput:
         if self.sensor != "mono":
             valid = np.isfinite(obs.depth)
-            if valid.sum() < max(2 * self.cfg.tracking.min_inliers, 50):
+            if valid.sum() < max(2 * self.cfg.tracking.min_inliers, self.cfg.init.min_depth_points):
                 self._set_prev(obs, gray)
                 return TrackOutput(None, "initializing", False, 0)
             self.segment += 1
@@ -323,8 +323,8 @@ class Tracker:
             return TrackOutput(None, "initializing", False, 0)
         t0 = time.perf_counter()
         if cfg.association == "match":
-            ref_idx, cur_idx = brute_force_match(init.ref.descriptors, obs.descriptors, self.binary, ratio=0.9,
-                                                 max_distance=64.0 if self.binary else None)
+            ref_idx, cur_idx = brute_force_match(init.ref.descriptors, obs.descriptors, self.binary, ratio=cfg.init.match_ratio,
+                                                 max_distance=cfg.init.max_descriptor_distance if self.binary else None)
         else:
             cur_idx = np.arange(len(obs))
             ref_idx = obs.anchor_idx.copy()
@@ -454,11 +454,11 @@ class Tracker:
         n_ref = self._kf_ref_tracked
         force = False
         if cfg.association == "track":
-            force = len(obs) < cfg.klt.min_tracks or (obs.point_ids >= 0).sum() < cfg.klt.min_tracks * 0.5
+            force = len(obs) < cfg.klt.min_tracks or (obs.point_ids >= 0).sum() < cfg.klt.min_tracks * cfg.klt.min_mapped_ratio
         if self.sensor != "mono" and cfg.motion != "2d2d":
             # depth sensors: few close tracked points means the map is thinning (ORB-SLAM2 "close points")
             close = np.isfinite(obs.depth) & (obs.point_ids >= 0)
-            force |= close.sum() < 100 and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > 70
+            force |= close.sum() < cfg.keyframes.close_tracked_min and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > cfg.keyframes.close_untracked_min
         if self._dense_rel is not None and cfg.dense.links and self._last_tracked_kf is not None:
             force = True  # posed by dense alignment to a keyframe: a keyframe keeps that link for local BA
         moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
@@ -548,7 +548,7 @@ class Tracker:
         best, best_agree = None, 0.0
         for T_guess in guesses:
             T, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.depth.min_depth,
-                                   min(self.cfg.depth.max_depth, 6.0), gray_prev=grays[0], gray_cur=grays[1],
+                                   min(self.cfg.depth.max_depth, self.cfg.dense.max_depth), gray_prev=grays[0], gray_cur=grays[1],
                                    downsample=self.cfg.dense.refine_downsample if photometric else 1)
             if T is not None and (best is None or agree > best_agree):
                 best, best_agree = T, agree
@@ -574,7 +574,7 @@ class Tracker:
         T_guess = inv_T(T_world_prev) @ T_world_cam
         agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess)
         guesses = [T_guess]
-        if agree0 < 0.9:  # a doubtful feature pose: also from the motion prediction and from no motion
+        if agree0 < self.cfg.dense.doubtful_agreement:  # a doubtful feature pose: also from the motion prediction and from no motion
             guesses += [inv_T(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
         T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=True)
         self.timers["pose"] += time.perf_counter() - t0
@@ -639,13 +639,13 @@ class Tracker:
                 first = self.prev.point_ids[self.prev.point_ids >= 0]
                 first = first[pts.alive[first]]
             m = np.zeros(0, np.int64)
-            if len(first) >= 3 * cfg.tracking.min_inliers:
+            if len(first) >= cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers:
                 vis_ids, proj, _ = project_local_points(pts, first, T_cw_pred, self.camera, check_distance=False)
                 m, k = self._guided(vis_ids, proj, obs, radius, tree)
-            if len(m) < 3 * cfg.tracking.min_inliers:
+            if len(m) < cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers:
                 vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw_pred, self.camera)
                 m, k = self._guided(vis_ids, proj, obs, radius, tree)
-            if len(m) < 3 * cfg.tracking.min_inliers and not relocalize:
+            if len(m) < cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers and not relocalize:
                 m, k = self._guided(vis_ids, proj, obs, cfg.matching.search_radius_lost_px, tree)
             if len(m) < cfg.tracking.min_inliers:
                 m, k, vis_ids, T_cw_pred = self._match_without_prediction(obs, local_ids)
@@ -673,14 +673,14 @@ class Tracker:
             rest = unique_ids(len(pts), local_ids, first, exclude=kept)
             vis_ids, proj, _ = project_local_points(pts, rest, T_cw, self.camera)
             free = obs.point_ids < 0
-            m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.tracking.pnp_reproj_px * 1.5), tree, free)
+            m, k = self._guided(vis_ids, proj, obs, max(cfg.matching.refine_radius_min_px, cfg.tracking.pnp_reproj_px * cfg.matching.refine_radius_factor), tree, free)
             obs.point_ids[k] = vis_ids[m]
             vis_ids = np.concatenate([kept, vis_ids])
             dt_assoc = time.perf_counter() - t1
             self.timers["association"] += dt_assoc
             t0 += dt_assoc  # not pose time
             T_cw2, inl2 = self._estimate(obs, T_cw, refine_only=True)
-            if T_cw2 is not None and inl2.sum() >= inl.sum() * 0.8:
+            if T_cw2 is not None and inl2.sum() >= inl.sum() * cfg.tracking.second_pass_keep_ratio:
                 T_cw, inl = T_cw2, inl2
             else:  # the wider association did not hold: back to the first pass
                 obs.point_ids = first_ids
@@ -701,8 +701,8 @@ class Tracker:
         empty = np.zeros(0, np.int64)
         if len(local_ids) == 0 or obs.descriptors is None or self.map.points.descriptor is None:
             return empty, empty, local_ids, None
-        i1, i2 = brute_force_match(self.map.points.descriptor[local_ids], obs.descriptors, self.binary, ratio=0.8,
-                                   max_distance=self.cfg.matching.max_descriptor_distance if self.binary else None)
+        i1, i2 = brute_force_match(self.map.points.descriptor[local_ids], obs.descriptors, self.binary,
+                                   ratio=self.cfg.matching.brute_force_ratio, max_distance=self.cfg.matching.max_descriptor_distance if self.binary else None)
         return i1, i2, local_ids, None
 
     def _guided(self, vis_ids, proj, obs: Observation, radius: float, tree, free: np.ndarray | None = None):
@@ -732,10 +732,10 @@ class Tracker:
                 return None, np.zeros(len(sel), bool)
             Xc = self.camera.backproject(uv[has], z[has])
             if self.sensor == "stereo":
-                thr = np.maximum(cfg.tracking.align_inlier_m, 2.0 * z[has] ** 2 / self.bf)
+                thr = np.maximum(cfg.tracking.align_inlier_m, cfg.tracking.align_stereo_disparity_px * z[has] ** 2 / self.bf)
             else:
                 thr = cfg.tracking.align_inlier_m * np.maximum(1.0, z[has] ** 2)
-            T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=100 if not refine_only else 30, rng=self.rng)
+            T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=cfg.tracking.align_iterations if not refine_only else cfg.tracking.align_refine_iterations, rng=self.rng)
             inl = np.zeros(len(sel), bool)
             if T_wc is None:
                 return None, inl
@@ -748,7 +748,7 @@ class Tracker:
             # matches were gated around the prediction: robust pose optimization straight from it
             # (ORB-SLAM's TrackWithMotionModel); RANSAC only when that explains too few matches
             T_cw, inl = refine_pose(T_cw_guess, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
-            if refine_only or inl.sum() >= max(cfg.tracking.min_inliers, 0.6 * len(sel)):
+            if refine_only or inl.sum() >= max(cfg.tracking.min_inliers, cfg.tracking.prediction_min_inlier_ratio * len(sel)):
                 return T_cw, inl
         # with depth, a first-pass pose only places the second association pass (gate 4.5 px),
         # which a refinement with the depth residuals follows: one LM round on its inliers is
@@ -779,7 +779,7 @@ class Tracker:
         if ref is None or len(ref) < 8 or len(obs) < 8:
             return None, 0
         if cfg.association == "match":
-            i1, i2 = brute_force_match(ref.descriptors, obs.descriptors, self.binary, ratio=0.8,
+            i1, i2 = brute_force_match(ref.descriptors, obs.descriptors, self.binary, ratio=cfg.two_view.match_ratio,
                                        max_distance=cfg.matching.max_descriptor_distance if self.binary else None)
             obs.point_ids[:] = -1
         else:
@@ -821,7 +821,8 @@ class Tracker:
                     # the constant-velocity model; the reference stays
                     T_world_cam = self.motion_model.predict()
                     T_world_cam[:3, :3] = self._T_world_ref2d[:3, :3] @ R.T
-            if advance or len(i1) < 0.5 * len(ref) or len(i1) < 4 * cfg.tracking.min_inliers:
+            if advance or len(i1) < cfg.two_view.advance_ratio * len(ref) \
+                    or len(i1) < cfg.two_view.advance_min_inliers_factor * cfg.tracking.min_inliers:
                 X = getattr(self, "_pending_X", None)
                 self._set_ref2d(obs, T_world_cam, None if X is None else X[1], None if X is None else X[0])
             self._pending_X = None
@@ -833,22 +834,24 @@ class Tracker:
         """Monocular 2D-2D translation with the relative scale: points triangulated from the previous
         pair and from this pair, both in the reference camera frame, compared by the median ratio of
         their distances (Scaramuzza & Fraundorfer, "Visual Odometry", RAM 2011, eq. (16))."""
+        tv = self.cfg.two_view
         T_cur_ref_unit = make_T(R, t)
         idx = np.flatnonzero(mask)
         X = triangulate(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
         e1, za = reprojection_error(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
         e2, zb = reprojection_error(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
-        good = (za > 0) & (zb > 0) & (e1 < 2.0) & (e2 < 2.0) & (parallax_deg(np.eye(4), inv_T(T_cur_ref_unit), X) > 0.2)
+        good = (za > 0) & (zb > 0) & (e1 < tv.max_reproj_px) & (e2 < tv.max_reproj_px) \
+            & (parallax_deg(np.eye(4), inv_T(T_cur_ref_unit), X) > tv.min_point_parallax_deg)
         # fallback: the distance the motion model expects between the reference and this frame
         T_pred = self.motion_model.predict()
         s = float(np.linalg.norm(T_pred[:3, 3] - self._T_world_ref2d[:3, 3])) if T_pred is not None else 1.0
-        if self._mono_X is not None and good.sum() >= 8:
+        if self._mono_X is not None and good.sum() >= tv.scale_min_points:
             old_idx, old_X = self._mono_X
             lookup = np.full(len(ref), -1, np.int64)
             lookup[old_idx] = np.arange(len(old_idx))
             j = lookup[i1[idx]]
             common = good & (j >= 0)
-            if common.sum() >= 8:
+            if common.sum() >= tv.scale_min_points:
                 ratio = np.linalg.norm(old_X[j[common]], axis=1) / np.linalg.norm(X[common], axis=1)
                 s = float(np.median(ratio))
         if not np.isfinite(s) or s <= 0:
@@ -873,7 +876,7 @@ class Tracker:
         kf_id = self.map.next_keyframe_id()
         if cfg.association == "track":
             # top up the tracks with new corners away from the existing ones
-            mask = detect_mask(gray.shape, obs.uv, max(8, int(self.fcfg.cell_size // 2)))
+            mask = detect_mask(gray.shape, obs.uv, max(cfg.klt.mask_min_radius_px, int(self.fcfg.cell_size // 2)))
             new = self._detect(frame, gray, mask)
             room = max(min(cfg.klt.max_tracks, self.fcfg.n_features) - len(obs), 0)  # bounded number of tracks
             if len(new) > room:
@@ -945,7 +948,7 @@ class Tracker:
                 b = np.flatnonzero(kf.point_ids < 0)
                 if len(a) < 8 or len(b) < 8:
                     continue
-                i1, i2 = brute_force_match(old.descriptors[a], kf.descriptors[b], self.binary, ratio=0.8,
+                i1, i2 = brute_force_match(old.descriptors[a], kf.descriptors[b], self.binary, ratio=cfg.mono.match_ratio,
                                            max_distance=cfg.matching.max_descriptor_distance if self.binary else None)
                 self._triangulate_pairs(old, a[i1], kf, b[i2], obs)
         else:
@@ -972,7 +975,8 @@ class Tracker:
         s1 = np.power(self.scale_factor, kf1.octave[idx1].astype(float))
         s2 = np.power(self.scale_factor, kf2.octave[idx2].astype(float))
         par = parallax_deg(kf1.T_world_cam, kf2.T_world_cam, X)
-        good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < 2.45 * s1) & (e2 < 2.45 * s2) \
+        good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < self.cfg.mono.max_reproj_sigmas * s1) \
+            & (e2 < self.cfg.mono.max_reproj_sigmas * s2) \
             & (par > self.cfg.mono.min_parallax_deg)
         if not good.any():
             return
