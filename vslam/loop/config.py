@@ -97,6 +97,12 @@ class ClosingConfig:
     # Weaker covisibility links (old points re-observed on a revisit) are loop candidates.
     connected_min_weight: int = param(15, "keyframes sharing this many points with the query are connected: excluded and moved with it (ORB-SLAM: 15)")
     fuse_radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels")
+    fuse_max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching")
+    fuse_ratio: float = param(0.9, "ratio test of that fusion's guided matching")
+    max_tries: int = param(3, "keyframes of a consistent candidate group verified at most (best match first)")
+    guided_max_descriptor_distance: float = param(64.0, "Hamming bound of the verification's guided matching")
+    guided_ratio: float = param(0.9, "ratio test of the verification's guided matching")
+    min_search_radius_px: float = param(3.0, "the second guided matching uses max(search_radius_px / 2, this), pixels")
     global_ba: bool = param(True, "run a global bundle adjustment after the pose-graph correction")
     match_keypoints_with_depth: bool = param(True, "RGB-D/stereo: the candidate group's keypoints with depth but no map point join the RANSAC")
     depth_keypoint_neighbours: int = param(10, "strongest covisible keyframes of the candidate whose depth keypoints join (one matching each)")
