@@ -157,7 +157,10 @@ class BackendConfig:
     mono_left_out: Literal["keep", "transport", "retriangulate"] = param("retriangulate", "two-view points left out of a monocular BA: keep, transport (with their keyframe) or retriangulate")
     cull_min_observations: int = param(2, "a point born two keyframes ago that fewer keyframes observe is culled (0 or 1 disables)")
     cull_keyframes: bool = param(False, "flag redundant keyframes bad (ORB-SLAM KeyFrameCulling)")
-    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= 3 others that makes it redundant")
+    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= redundant_min_observers others that makes it redundant")
+    redundant_min_observers: int = param(3, "other keyframes that must see a point for it to count as redundant (ORB-SLAM: 3)")
+    cull_keep_recent_keyframes: int = param(3, "the newest this many keyframes of a segment are never culled")
+    cull_age_keyframes: int = param(3, "a new point is judged by cull_min_observations once its segment has this many keyframes from its own on (ORB-SLAM: 3)")
     stereo_far_baselines: float = param(35.0, "stereo observations of points farther than this many baselines enter BA as monocular (0: off)")
     # ORB-SLAM2's triangulation minimum, cos 0.9998. Otherwise its depth is unobservable and LM slides it along
     # its ray, dragging the poses. EuRoC V1_01 (camera at rest): one such point went from 4.2 m to the camera
@@ -168,6 +171,7 @@ class BackendConfig:
     fuse: bool = param(True, "before each local BA, fuse the window's points and the new keyframe's (ORB-SLAM2 SearchInNeighbors; needs association=match)")
     fuse_radius_px: float = param(4.0, "point fusion search radius in pixels")
     fuse_max_descriptor_distance: float = param(50.0, "point fusion descriptor threshold (Hamming)")
+    fuse_ratio: float = param(1.0, "point fusion ratio test (1.0: off, the closest descriptor in the radius wins)")
     # Off: on KITTI 07 (mono, Sim(3) ATE, local BA) fusion raised the ATE on all 5 clips measured (160 frames
     # 0.431 vs 0.376 m; also with the octave check of ORB-SLAM2's Fuse, or with only its merges or only its
     # new observations).
