@@ -4,7 +4,11 @@ Defaults live in code. A YAML file overrides any subset (nested mappings mirror 
 tree) and ``--set key.sub=value`` overrides single fields; values are parsed as YAML scalars
 and checked against the field's type, so ``--set loop.enabled=false`` or
 ``--set frontend.motion=3d3d`` work and a typo gives a :class:`~vslam.errors.ConfigError`
-listing the valid keys.
+listing the valid keys. Sections nest per concern (``--set frontend.keyframes.max_frames=5``);
+the old flat keys a section replaced (``frontend.kf_max_frames``) still load, with a warning.
+
+Every field is declared with :func:`vslam.param.param` and a one-line doc: :func:`iter_settings`
+lists them, ``vslam config`` prints them and ``docs/settings.md`` is :func:`settings_markdown`.
 """
 from __future__ import annotations
 
