@@ -8,7 +8,7 @@ from vslam.datasets import open_dataset
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError
 from vslam.features.config import FeatureConfig
-from vslam.frontend.config import FrontendConfig
+from vslam.frontend.config import FrontendConfig, TrackingConfig
 from vslam.geometry.umeyama import umeyama
 from vslam.system import System
 
@@ -115,7 +115,7 @@ def test_lost_frames_get_no_pose_and_tracking_recovers():
     from tests.frontend._synthetic import synthetic_frames
 
     camera, frames, gt = synthetic_frames()
-    system = System(FrontendConfig(max_lost_frames=2), camera, "rgbd", features=FeatureConfig(n_features=800))
+    system = System(FrontendConfig(tracking=TrackingConfig(max_lost_frames=2)), camera, "rgbd", features=FeatureConfig(n_features=800))
     states = []
     for k, f in enumerate(frames[:20]):
         if k in (8, 9, 10):

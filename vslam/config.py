@@ -4,11 +4,16 @@ Defaults live in code. A YAML file overrides any subset (nested mappings mirror 
 tree) and ``--set key.sub=value`` overrides single fields; values are parsed as YAML scalars
 and checked against the field's type, so ``--set loop.enabled=false`` or
 ``--set frontend.motion=3d3d`` work and a typo gives a :class:`~vslam.errors.ConfigError`
-listing the valid keys.
+listing the valid keys. Sections nest per concern (``--set frontend.keyframes.max_frames=5``);
+the old flat keys a section replaced (``frontend.kf_max_frames``) still load, with a warning.
+
+Every field is declared with :func:`vslam.param.param` and a one-line doc: :func:`iter_settings`
+lists them, ``vslam config`` prints them and ``docs/settings.md`` is :func:`settings_markdown`.
 """
 from __future__ import annotations
 
 import dataclasses
+import logging
 import types
 import typing
 from pathlib import Path
@@ -17,6 +22,9 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 import yaml
 
 from vslam.errors import ConfigError
+from vslam.param import doc_of, section
+
+log = logging.getLogger(__name__)
 
 
 def to_dict(cfg: Any) -> dict:
@@ -102,6 +110,7 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
     base = base if base is not None else cls()
     hints = get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
+    data = _nest_flat_keys(cls, data, prefix)
     unknown = set(data) - names
     if unknown:
         raise ConfigError(
@@ -119,6 +128,133 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
         return dataclasses.replace(base, **changes)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: {exc}") from None
+
+
+def flat_key_map(cls: type) -> dict[str, tuple[str, str]]:
+    """Old flat keys of ``cls`` -> (section, key) of the nested section that replaced them.
+
+    Derived from the ``flat_prefixes`` of each :func:`vslam.param.section` field: a section ``s``
+    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``.
+    """
+    out: dict[str, tuple[str, str]] = {}
+    for f in dataclasses.fields(cls):
+        for prefix in f.metadata.get("flat_prefixes", ()):
+            for g in dataclasses.fields(f.default_factory):  # type: ignore[arg-type]
+                out.setdefault(prefix + g.name, (f.name, g.name))
+    return out
+
+
+def _nest_flat_keys(cls: type, data: dict, prefix: str) -> dict:
+    """Move old flat keys (``frontend.kf_max_frames``) to their nested section, with a warning."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    old = [k for k in data if k not in names]
+    if not old:
+        return data
+    mapping = flat_key_map(cls)
+    out = dict(data)
+    for key in old:
+        if key not in mapping:
+            continue
+        sec, name = mapping[key]
+        value = out.pop(key)
+        target = out.get(sec)
+        if target is None:
+            target = out[sec] = {}
+        elif not isinstance(target, dict):
+            continue
+        else:
+            target = out[sec] = dict(target)
+        target.setdefault(name, value)
+        log.warning("setting %s%s is deprecated; use %s%s.%s", prefix, key, prefix, sec, name)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One leaf setting: its dotted key, default value, type and one-line doc."""
+
+    key: str
+    default: Any
+    type: str
+    doc: str
+
+
+def _type_name(tp: Any) -> str:
+    if get_origin(tp) is Literal:
+        return "|".join(str(a) for a in get_args(tp))
+    name = getattr(tp, "__name__", None)
+    return name if name and get_origin(tp) is None else str(tp).replace("typing.", "")
+
+
+def iter_settings(cls: type, prefix: str = "") -> list[Setting]:
+    """Every leaf setting of the dataclass tree ``cls`` (dotted keys, defaults of ``cls()``)."""
+    out = []
+    base = cls()
+    hints = get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        value = getattr(base, f.name)
+        if dataclasses.is_dataclass(value):
+            out += iter_settings(type(value), f"{prefix}{f.name}.")
+        else:
+            out.append(Setting(prefix + f.name, value, _type_name(hints[f.name]), doc_of(f)))
+    return out
+
+
+def iter_sections(cls: type, prefix: str = "") -> list[tuple[str, str]]:
+    """(dotted key, doc) of every nested section of ``cls``: its field doc, else its class docstring."""
+    out = []
+    base = cls()
+    for f in dataclasses.fields(cls):
+        value = getattr(base, f.name)
+        if dataclasses.is_dataclass(value):
+            doc = doc_of(f) or (type(value).__doc__ or "").strip().splitlines()[0]
+            out.append((prefix + f.name, doc))
+            out += iter_sections(type(value), f"{prefix}{f.name}.")
+    return out
+
+
+def format_value(value: Any) -> str:
+    """A default as it would be written in a YAML config file (``true``, ``null``, ``.inf``, ``[1, 2]``)."""
+    if isinstance(value, tuple):
+        value = list(value)
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**6).strip()
+    return text[:-3].strip() if text.endswith("...") else text
+
+
+def settings_text(cls: type, only: str = "") -> str:
+    """Every setting of ``cls`` as ``key = default  doc`` lines (those under ``only`` if given)."""
+    rows = [s for s in iter_settings(cls) if not only or s.key == only or s.key.startswith(only + ".")]
+    width = max((len(f"{s.key} = {format_value(s.default)}") for s in rows), default=0)
+    return "".join(f"{f'{s.key} = {format_value(s.default)}':<{width}}  # {s.doc}\n" for s in rows)
+
+
+def settings_markdown(cls: type) -> str:
+    """``docs/settings.md``: one table per section, every key with its type, default and doc."""
+    docs = dict(iter_sections(cls))
+    lines = [
+        "# Settings",
+        "",
+        "<!-- Generated by `vslam config --markdown > docs/settings.md` from the config dataclasses "
+        "(vslam/*/config.py); do not edit by hand. tests/cli/test_config_cmd.py fails when it is stale. -->",
+        "",
+        "Every setting with its default. Override in a YAML file (`vslam run --config FILE`, nested like the "
+        "keys) or with `--set key=value` (e.g. `--set frontend.keyframes.max_frames=10`); `vslam run` writes "
+        "the resolved `config.yaml` next to its results. `vslam config` prints this list.",
+        "",
+    ]
+    groups: dict[str, list[Setting]] = {}
+    for s in iter_settings(cls):
+        groups.setdefault(s.key.rsplit(".", 1)[0] if "." in s.key else "", []).append(s)
+    for section_key, rows in groups.items():
+        title = f"{'#' * min(section_key.count('.') + 2, 4)} `{section_key}`"
+        lines += [title + (f": {docs[section_key]}" if docs.get(section_key) else ""), "",
+                  "| key | type | default | description |", "|---|---|---|---|"]
+        for s in rows:
+            key = s.key[len(section_key) + 1:] if section_key else s.key
+            lines.append(f"| `{key}` | {s.type.replace('|', ' or ')} | `{format_value(s.default)}` | "
+                         f"{s.doc.replace('|', '/')} |")
+        lines.append("")
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -170,7 +306,7 @@ def dump_config(cfg: Any, path: str | Path) -> None:
 
 
 # --------------------------------------------------------------------------- the root configuration
-from dataclasses import dataclass, field  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 
 from vslam.backend.config import BackendConfig  # noqa: E402,F401  (re-exported: vslam.config.BackendConfig)
 from vslam.features.config import FeatureConfig  # noqa: E402
@@ -182,7 +318,7 @@ from vslam.loop.config import LoopConfig  # noqa: E402
 class Config:
     """Everything a run is configured by, one section per pipeline stage."""
 
-    features: FeatureConfig = field(default_factory=FeatureConfig)
-    frontend: FrontendConfig = field(default_factory=FrontendConfig)
-    backend: BackendConfig = field(default_factory=BackendConfig)
-    loop: LoopConfig = field(default_factory=LoopConfig)
+    features: FeatureConfig = section(FeatureConfig, "feature detection")
+    frontend: FrontendConfig = section(FrontendConfig, "tracking: association, motion, keyframes, local map")
+    backend: BackendConfig = section(BackendConfig, "local mapping, bundle adjustment, pose graph, EKF")
+    loop: LoopConfig = section(LoopConfig, "place recognition, loop closing, relocalization")

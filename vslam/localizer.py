@@ -236,7 +236,7 @@ class Localizer:
         depth = np.full(n, np.nan)
         if self.sensor == "rgbd" and getattr(frame, "depth", None) is not None and n:
             fc = self.config.frontend
-            depth = sample_depth(frame.depth, uv, fc.min_depth, fc.max_depth)
+            depth = sample_depth(frame.depth, uv, fc.depth.min_depth, fc.depth.max_depth)
         u_right = uv_undist[:, 0] - self.bf / depth if (self.bf > 0 and self.cfg.use_depth) else None
         desc = feats.descriptors if feats.descriptors is not None else np.zeros((0, 32), np.uint8)
         return _Obs(uv, uv_undist, desc, np.asarray(feats.octave, dtype=np.int32).reshape(-1), depth, u_right)

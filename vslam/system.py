@@ -77,7 +77,7 @@ class System:
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
         self._init_backend(getattr(config, "backend", None), camera, sensor, feat)
-        if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense_links)
+        if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense.links)
             self.local_mapper.dense_links = self.tracker.dense_links
         self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
         # per tracked frame: timestamp, reference keyframe id or -1, T_world_cam as tracked, and the

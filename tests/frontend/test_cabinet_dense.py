@@ -1,9 +1,9 @@
 """TUM fr3/cabinet (58 RGB-D keyframes ~0.67 s apart, a texture-poor cabinet): the few ORB features
 sit on the cabinet's outlines, where the depth is ambiguous, and PnP on 30-60 of them was off by up
 to 10 deg / 30 cm per step. Weak feature poses are refined by dense RGB-D alignment (depth ICP +
-photometric, ``frontend.depth_refine``), the ICP fallback aligns grey images too and keeps the
+photometric, ``frontend.dense.refine``), the ICP fallback aligns grey images too and keeps the
 better of two starts, and the keyframes so posed keep that relative pose in local / global BA
-(``frontend.dense_links``, :mod:`vslam.backend.dense_links`).
+(``frontend.dense.links``, :mod:`vslam.backend.dense_links`).
 
 Before (session 3): odometry 0.196 m, + local BA 0.207 m, default (loop closed) 0.134 m.
 Measured after: odometry 0.038, + local BA 0.028, default 0.036 with the loop [57, 2, 11]."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.frontend.config import FrontendConfig
+from vslam.frontend.config import FrontendConfig, KeyframesConfig
 from vslam.frontend.initializer import MonoInitializer
 from vslam.frontend.keyframe_policy import need_keyframe
 from vslam.frontend.motion_model import MotionModel
@@ -14,12 +14,12 @@ K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
 
 def test_keyframe_policy():
-    cfg = FrontendConfig(kf_max_frames=20, kf_tracked_ratio=0.75)
+    cfg = FrontendConfig(keyframes=KeyframesConfig(max_frames=20, tracked_ratio=0.75))
     assert not need_keyframe(cfg, 3, 900, 1000, 900)
     assert need_keyframe(cfg, 3, 700, 1000, 700)
     assert need_keyframe(cfg, 20, 1000, 1000, 1000)
     assert need_keyframe(cfg, 1, 1000, 1000, 1000, force=True)
-    assert not need_keyframe(FrontendConfig(kf_min_frames=5), 2, 10, 1000, 10)
+    assert not need_keyframe(FrontendConfig(keyframes=KeyframesConfig(min_frames=5)), 2, 10, 1000, 10)
 
 
 def test_motion_model_constant_velocity():

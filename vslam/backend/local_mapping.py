@@ -125,7 +125,7 @@ class LocalMapper:
         # (System re-anchors the tracker's motion model on it, ORB-SLAM's UpdateLastFrame)
         self.correction_listeners: list = []
         # RGB-D: {kf_id: DenseLink} from the tracker's dense alignments, constraints in local BA
-        # (vslam.backend.dense_links; filled by the System when frontend.dense_links is on)
+        # (vslam.backend.dense_links; filled by the System when frontend.dense.links is on)
         self.dense_links: dict = {}
 
     # ------------------------------------------------------------------ feeding
@@ -358,7 +358,8 @@ class LocalMapper:
             return 0
         binary = kf.descriptors.dtype == np.uint8
         m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fuse_radius_px,
-                               binary, self.config.fuse_max_descriptor_distance if binary else None, ratio=1.0,
+                               binary, self.config.fuse_max_descriptor_distance if binary else None,
+                               ratio=self.config.fuse_ratio,
                                kp_tree=kf.keypoint_tree())
         if len(m) == 0:
             return 0
@@ -527,8 +528,9 @@ class LocalMapper:
         kf = self.map.keyframes.get(kf_id)
         if k_min > 1 and kf is not None:
             seg_ids = sorted(k.id for k in _segment_keyframes(self.map, kf.segment))
-            if len(seg_ids) >= 3:
-                upto = seg_ids[-3]  # points born two keyframes ago had their chance to be re-observed
+            age = self.config.cull_age_keyframes
+            if len(seg_ids) >= age:
+                upto = seg_ids[-age]  # points born two keyframes ago had their chance to be re-observed
                 first = store.first_kf[:n]
                 lo = self._culled_upto.get(kf.segment, -1)
                 recent = alive & (first > lo) & (first <= upto)
@@ -540,16 +542,17 @@ class LocalMapper:
 
     def _cull_keyframes(self, kf_id: int) -> None:
         """ORB-SLAM KeyFrameCulling over the covisible keyframes of ``kf_id``: a keyframe whose
-        points are >= ``redundant_ratio`` observed by >= 3 other keyframes is flagged bad."""
+        points are >= ``redundant_ratio`` observed by >= ``redundant_min_observers`` other keyframes is flagged bad."""
         store = self.map.points
         kf = self.map.keyframes.get(kf_id)
         if kf is None:
             return
         seg = _segment_keyframes(self.map, kf.segment)
-        if len(seg) < 4:
+        n_recent = self.config.cull_keep_recent_keyframes
+        if len(seg) < n_recent + 1:
             return
         first = min(k.id for k in seg)
-        recent = {k.id for k in sorted(seg, key=lambda k: k.id)[-3:]}
+        recent = {k.id for k in sorted(seg, key=lambda k: k.id)[-n_recent:]}
         for cid in self.map.covisible(kf_id):
             c = self.map.keyframes.get(cid)
             if c is None or c.bad or c.id == first or c.id in recent or c.segment != kf.segment:
@@ -568,7 +571,7 @@ class LocalMapper:
                 in_o[obs] = True
                 seen += in_o[ids]
                 in_o[obs] = False
-            if np.mean(seen >= 3) >= self.config.redundant_ratio:
+            if np.mean(seen >= self.config.redundant_min_observers) >= self.config.redundant_ratio:
                 self._set_bad(c)
 
     def _set_bad(self, kf: KeyFrame) -> None:

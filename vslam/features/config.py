@@ -7,58 +7,37 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from vslam.errors import ConfigError
+from vslam.param import param
 
 DETECTORS = ("orb", "sift", "akaze", "brisk", "gftt_orb")
 
 
 @dataclass(frozen=True)
 class FeatureConfig:
-    """Feature detection.
+    """Feature detection."""
 
-    Attributes:
-        detector: one of ``orb`` (grid-distributed ORB over a pyramid, the default), ``sift``,
-            ``akaze``, ``brisk`` or ``gftt_orb`` (Shi-Tomasi corners with ORB descriptors, the same
-            corners KLT tracks well).
-        n_features: how many features to keep per frame (upper bound; low texture gives fewer).
-        scale_factor: pyramid scale between consecutive levels (ORB, GFTT-ORB).
-        n_levels: pyramid levels (ORB).
-        fast_threshold: FAST intensity threshold for ORB candidates. Candidates are ranked by
-            FAST score inside each grid cell, so a low threshold (10) keeps strong corners first
-            and still gives weak-texture cells a feature. 20 (ORB-SLAM's) returns ~2.5x fewer
-            FAST corners, so the detector is ~15-25% faster (its cost is mostly per returned
-            corner), at equal or better ATE on 7-Scenes RGB-D odometry (0.0553 vs 0.0586 m), fr1
-            desk (0.0038 vs 0.0045), KITTI 06 stereo (0.125 vs 0.124), KITTI 07 mono (0.256 vs
-            0.276), worse on the fr3 cabinet keyframes (0.23 vs 0.20), with fewer weak-texture cells
-            covered (32 px cells: 53% vs 68% on 7-Scenes, 70% vs 83% on the brick texture).
-        min_fast_threshold: if > 0 (and < ``fast_threshold``), FAST runs again at this
-            threshold in the grid cells where ``fast_threshold`` found nothing (ORB-SLAM's 20/7
-            scheme). Measured on KITTI + TUM frames: 20/7 covers 97%/68% of 40 px cells vs
-            96%/61% for a single pass at 10, but costs ~20-25% more time, so it is off by default.
-        cell_size: grid cell side in pixels *at each pyramid level* used to spread features.
-        edge_threshold: keypoints closer than this to a level's border are dropped (the rotated
-            BRIEF pattern needs ~19 px).
-        patch_size: ORB patch (orientation and descriptor) diameter.
-        sift_contrast_threshold: SIFT's contrast threshold.
-        akaze_threshold: AKAZE detector threshold.
-        brisk_threshold: BRISK AGAST threshold.
-        gftt_quality: Shi-Tomasi quality level for ``gftt_orb``.
-        gftt_min_distance: minimum distance between Shi-Tomasi corners for ``gftt_orb``.
-    """
-
-    detector: str = "orb"
-    n_features: int = 2000
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    fast_threshold: int = 10
-    min_fast_threshold: int = 0
-    cell_size: int = 32
-    edge_threshold: int = 19
-    patch_size: int = 31
-    sift_contrast_threshold: float = 0.02
-    akaze_threshold: float = 0.0005
-    brisk_threshold: int = 20
-    gftt_quality: float = 0.001
-    gftt_min_distance: float = 8.0
+    detector: str = param("orb", "orb (grid-distributed ORB over a pyramid), sift, akaze, brisk or gftt_orb (Shi-Tomasi corners + ORB descriptors)")
+    n_features: int = param(2000, "features kept per frame (upper bound; low texture gives fewer)")
+    scale_factor: float = param(1.2, "pyramid scale between consecutive levels (ORB, GFTT-ORB)")
+    n_levels: int = param(8, "pyramid levels (ORB)")
+    # Candidates are ranked by FAST score inside each grid cell, so a low threshold (10) keeps strong corners
+    # first and still gives weak-texture cells a feature. 20 (ORB-SLAM's) returns ~2.5x fewer FAST corners, so
+    # the detector is ~15-25% faster (its cost is mostly per returned corner), at equal or better ATE on
+    # 7-Scenes RGB-D odometry (0.0553 vs 0.0586 m), fr1 desk (0.0038 vs 0.0045), KITTI 06 stereo (0.125 vs
+    # 0.124), KITTI 07 mono (0.256 vs 0.276), worse on the fr3 cabinet keyframes (0.23 vs 0.20), with fewer
+    # weak-texture cells covered (32 px cells: 53% vs 68% on 7-Scenes, 70% vs 83% on the brick texture).
+    fast_threshold: int = param(10, "FAST intensity threshold of ORB candidates")
+    # ORB-SLAM's 20/7 scheme. Measured on KITTI + TUM frames: 20/7 covers 97%/68% of 40 px cells vs 96%/61%
+    # for a single pass at 10, but costs ~20-25% more time, so it is off by default.
+    min_fast_threshold: int = param(0, "if > 0 (and < fast_threshold): FAST again at this threshold in cells where fast_threshold found nothing")
+    cell_size: int = param(32, "grid cell side in pixels at each pyramid level, used to spread features")
+    edge_threshold: int = param(19, "keypoints closer than this to a level's border are dropped (rotated BRIEF needs ~19 px)")
+    patch_size: int = param(31, "ORB patch (orientation and descriptor) diameter in pixels")
+    sift_contrast_threshold: float = param(0.02, "SIFT's contrast threshold")
+    akaze_threshold: float = param(0.0005, "AKAZE detector threshold")
+    brisk_threshold: int = param(20, "BRISK AGAST threshold")
+    gftt_quality: float = param(0.001, "Shi-Tomasi quality level (gftt_orb)")
+    gftt_min_distance: float = param(8.0, "minimum distance between Shi-Tomasi corners in pixels (gftt_orb)")
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -77,24 +56,15 @@ class FeatureConfig:
 
 @dataclass(frozen=True)
 class MatcherConfig:
-    """Descriptor matching.
+    """Descriptor matching."""
 
-    Attributes:
-        ratio: Lowe's ratio test, best < ratio * second best (1.0 disables it).
-        mutual: keep only mutual nearest neighbours.
-        max_distance: absolute bound on the best distance (Hamming bits or L2); None = no bound.
-            ORB-SLAM uses 50 (TH_LOW) / 100 (TH_HIGH) for 256-bit ORB.
-        num_threads: OpenMP threads faiss may use (results do not depend on it). 1 by default:
-            on a busy 2-core machine 2 threads made a 2000x2000 match 3-10x slower (spinning).
-        use_faiss: use faiss for the k-NN search (faster than OpenCV's BFMatcher at >= a few
-            hundred descriptors); False uses a NumPy brute force (reference implementation).
-    """
-
-    ratio: float = 0.8
-    mutual: bool = True
-    max_distance: float | None = None
-    num_threads: int = 1
-    use_faiss: bool = True
+    ratio: float = param(0.8, "Lowe's ratio test: best < ratio * second best (1.0 disables it)")
+    mutual: bool = param(True, "keep only mutual nearest neighbours")
+    # ORB-SLAM uses 50 (TH_LOW) / 100 (TH_HIGH) for 256-bit ORB.
+    max_distance: float | None = param(None, "absolute bound on the best distance (Hamming bits or L2); null: no bound")
+    # on a busy 2-core machine 2 threads made a 2000x2000 match 3-10x slower (spinning)
+    num_threads: int = param(1, "OpenMP threads faiss may use (results do not depend on it)")
+    use_faiss: bool = param(True, "faiss k-NN search (faster at >= a few hundred descriptors); false: NumPy brute force")
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ratio <= 1.0:
@@ -105,24 +75,15 @@ class MatcherConfig:
 
 @dataclass(frozen=True)
 class KLTConfig:
-    """Pyramidal Lucas-Kanade tracking (Bouguet 2001) with a forward-backward check.
+    """Pyramidal Lucas-Kanade tracking (Bouguet 2001) with a forward-backward check."""
 
-    Attributes:
-        win_size: LK window side in pixels.
-        max_level: pyramid levels above the base (3 -> 4 levels).
-        max_iter, eps: LK termination per level.
-        fb_threshold: max forward-backward error in pixels (Kalal et al. 2010); <= 0 disables.
-        border: tracked points closer than this to the image border are rejected.
-        min_eig_threshold: OpenCV's minimum eigenvalue threshold (rejects flat patches).
-    """
-
-    win_size: int = 21
-    max_level: int = 3
-    max_iter: int = 30
-    eps: float = 0.01
-    fb_threshold: float = 1.0
-    border: float = 2.0
-    min_eig_threshold: float = 1e-4
+    win_size: int = param(21, "LK window side in pixels")
+    max_level: int = param(3, "pyramid levels above the base (3 -> 4 levels)")
+    max_iter: int = param(30, "LK iterations per level")
+    eps: float = param(0.01, "LK convergence threshold per level")
+    fb_threshold: float = param(1.0, "max forward-backward error in pixels (Kalal et al. 2010); <= 0 disables")
+    border: float = param(2.0, "tracked points closer than this to the image border are rejected, pixels")
+    min_eig_threshold: float = param(1e-4, "OpenCV's minimum eigenvalue threshold (rejects flat patches)")
 
     def __post_init__(self) -> None:
         if self.win_size < 3 or self.win_size % 2 == 0:
@@ -133,40 +94,21 @@ class KLTConfig:
 
 @dataclass(frozen=True)
 class StereoConfig:
-    """Left-right matching of a rectified stereo pair (ORB-SLAM2's ``ComputeStereoMatches``).
+    """Left-right matching of a rectified stereo pair (ORB-SLAM2's ``ComputeStereoMatches``)."""
 
-    Attributes:
-        max_row_diff: allowed row difference in pixels at level 0, multiplied by the right
-            keypoint's octave scale.
-        min_disparity: smallest accepted disparity in pixels (> 0 keeps depth finite).
-        max_disparity: largest accepted disparity in pixels; None = ``fx * baseline / min_depth``
-            when a camera is given, else the image width.
-        min_depth: used to derive ``max_disparity`` from a camera (metres).
-        max_distance: descriptor distance bound (Hamming bits for binary, L2 otherwise); None =
-            100 bits for binary (ORB-SLAM's TH_HIGH) and no bound for float descriptors.
-        ratio: best < ratio * second-best among the row candidates (1.0 disables).
-        octave_tolerance: right keypoints must lie within this many octaves of the left one.
-        refine: sub-pixel refinement by SAD block matching along the row plus a parabola fit.
-        sad_window: half size of the SAD patch (5 -> 11x11) at the keypoint's octave.
-        sad_search: half range of the SAD search along the row, in level pixels.
-        subpixel: ``"parabola"`` (ORB-SLAM2: parabola through the SAD minimum, ~0.2-0.3 px
-            bias on clean shifts) or ``"lk"`` (then a 1-D Lucas-Kanade refinement at full
-            resolution, ~0.05 px).
-        lk_window: half size of the full-resolution LK window (5 -> 11x11).
-    """
-
-    max_row_diff: float = 2.0
-    min_disparity: float = 0.5
-    max_disparity: float | None = None
-    min_depth: float = 0.5
-    max_distance: float | None = None
-    ratio: float = 0.9
-    octave_tolerance: int = 1
-    refine: bool = True
-    sad_window: int = 5
-    sad_search: int = 5
-    subpixel: str = "lk"
-    lk_window: int = 5
+    max_row_diff: float = param(2.0, "allowed row difference in pixels at level 0, times the right keypoint's octave scale")
+    min_disparity: float = param(0.5, "smallest accepted disparity in pixels (> 0 keeps depth finite)")
+    max_disparity: float | None = param(None, "largest accepted disparity in pixels; null: fx * baseline / min_depth, else the image width")
+    min_depth: float = param(0.5, "metres; derives max_disparity from a camera")
+    max_distance: float | None = param(None, "descriptor distance bound; null: 100 bits for binary (ORB-SLAM TH_HIGH), none for float")
+    ratio: float = param(0.9, "best < ratio * second-best among the row candidates (1.0 disables)")
+    octave_tolerance: int = param(1, "right keypoints must lie within this many octaves of the left one")
+    refine: bool = param(True, "sub-pixel refinement by SAD block matching along the row plus a parabola fit")
+    sad_window: int = param(5, "half size of the SAD patch (5 -> 11x11) at the keypoint's octave")
+    sad_search: int = param(5, "half range of the SAD search along the row, in level pixels")
+    # parabola: ~0.2-0.3 px bias on clean shifts; lk: ~0.05 px
+    subpixel: str = param("lk", "parabola (ORB-SLAM2: through the SAD minimum) or lk (then 1-D Lucas-Kanade at full resolution)")
+    lk_window: int = param(5, "half size of the full-resolution LK window (5 -> 11x11)")
 
     def __post_init__(self) -> None:
         if self.subpixel not in ("parabola", "lk"):

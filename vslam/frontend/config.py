@@ -1,9 +1,15 @@
-"""Configuration of the visual-odometry frontend (association, motion estimation, keyframes, map)."""
+"""Configuration of the visual-odometry frontend (association, motion estimation, keyframes, map).
+
+One nested frozen dataclass per concern (``frontend.keyframes.*``, ``frontend.tracking.*`` ...);
+every field is declared with :func:`~vslam.param.param` and its one-line doc (``vslam config``
+lists them). Longer measurement notes behind a default are comments above the field.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from vslam.errors import ConfigError
+from vslam.param import param, section
 
 ASSOCIATIONS = ("match", "track")
 MOTIONS = ("3d2d", "3d3d", "2d2d")
@@ -11,101 +17,174 @@ SENSORS = ("mono", "stereo", "rgbd")
 
 
 @dataclass(frozen=True)
+class DepthConfig:
+    """Which depth (RGB-D) and stereo measurements the frontend uses."""
+
+    min_depth: float = param(0.1, "metres; nearer depth / stereo points are ignored")
+    max_depth: float = param(10.0, "metres; farther RGB-D depths are ignored")
+    stereo_max_depth_baselines: float = param(60.0, "stereo points farther than this many baselines are 'far' (no depth)")
+    stereo_max_dy: float = param(1.5, "px; rows of a rectified stereo match must agree within this")
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Pose estimation of each frame against the local map, and when a frame counts as lost."""
+
+    pnp_reproj_px: float = param(3.0, "PnP RANSAC / pose refinement inlier threshold in pixels")
+    pnp_iterations: int = param(100, "PnP RANSAC iterations")
+    # 7-Scenes odometry ATE 0.32 vs 0.055 m: fast motions mislead it.
+    pose_from_prediction: bool = param(False, "skip PnP RANSAC when the robust refinement from the motion prediction holds")
+    align_inlier_m: float = param(0.03, "3D-3D RANSAC threshold at 1 m depth, metres (scaled with depth^2 for RGB-D noise)")
+    min_inliers: int = param(20, "fewer pose inliers than this means the frame is lost")
+    essential_px: float = param(1.0, "2D-2D (essential matrix) RANSAC threshold in pixels")
+    max_lost_frames: int = param(3, "after this many consecutive lost frames, re-initialize a new map segment")
+    enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search")
+    second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers")
+    prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers")
+    align_iterations: int = param(100, "3D-3D RANSAC iterations")
+    align_refine_iterations: int = param(30, "3D-3D RANSAC iterations when only refining a pose")
+    align_stereo_disparity_px: float = param(2.0, "stereo 3D-3D threshold is at least the depth error of this disparity error, pixels")
+
+
+@dataclass(frozen=True)
+class MatchingConfig:
+    """Descriptor association of the frame's keypoints with the local map (``association=match``)."""
+
+    search_radius_px: float = param(12.0, "guided matching radius around a point's predicted projection, pixels")
+    search_radius_lost_px: float = param(30.0, "wider guided matching radius when few matches were found, pixels")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of a match (ORB); float descriptors use the ratio only")
+    match_ratio: float = param(0.9, "best / second-best descriptor distance ratio in guided matching")
+    brute_force_ratio: float = param(0.8, "ratio test of the brute-force matching to the whole local map (no pose prior)")
+    refine_radius_min_px: float = param(4.0, "second guided matching after the pose: radius max(this, refine_radius_factor * tracking.pnp_reproj_px)")
+    refine_radius_factor: float = param(1.5, "second guided matching radius in units of tracking.pnp_reproj_px")
+
+
+@dataclass(frozen=True)
+class KLTTrackingConfig:
+    """Optical-flow association (``association=track``)."""
+
+    min_tracks: int = param(300, "re-detect features when fewer KLT tracks survive")
+    max_tracks: int = param(1000, "re-detection tops the tracks up to this many")
+    window: int = param(15, "KLT window side in pixels")
+    levels: int = param(3, "KLT pyramid levels above the base image")
+    retry_ratio: float = param(0.5, "when fewer than this ratio of the tracks survive a predicted flow, track again from zero flow")
+    min_mapped_ratio: float = param(0.5, "force a keyframe when fewer than this ratio of min_tracks tracks have a map point")
+    mask_min_radius_px: int = param(8, "re-detection keeps at least this distance from existing tracks, pixels (or half a feature cell)")
+
+
+@dataclass(frozen=True)
+class TwoViewConfig:
+    """Frame-to-frame essential-matrix motion (``motion=2d2d``)."""
+
+    depth_scale_only: bool = param(False, "with depth: keep the essential matrix's translation direction, take only its scale from depth")
+    min_parallax_deg: float = param(1.0, "monocular: below this parallax the reference frame is kept (translation unobservable)")
+    match_ratio: float = param(0.8, "ratio test of the frame-to-reference descriptor matching")
+    advance_ratio: float = param(0.5, "the reference frame advances when fewer than this ratio of its keypoints are matched")
+    advance_min_inliers_factor: int = param(4, "... or fewer than this many times tracking.min_inliers")
+    max_reproj_px: float = param(2.0, "monocular: triangulated points (relative scale) need reprojection errors below this, pixels")
+    min_point_parallax_deg: float = param(0.2, "monocular: triangulated points (relative scale) need this parallax, degrees")
+    scale_min_points: int = param(8, "monocular: points common with the last pair needed to carry the scale over")
+
+
+@dataclass(frozen=True)
+class KeyframesConfig:
+    """When a frame becomes a keyframe (ORB-SLAM style: track quality and time based)."""
+
+    max_frames: int = param(20, "insert a keyframe at least every this many frames")
+    min_frames: int = param(0, "never insert a keyframe sooner than this many frames after the last one")
+    tracked_ratio: float = param(0.75, "insert when fewer than this ratio of the reference keyframe's points are tracked")
+    # ORB-SLAM's thRefRatio. 0.8 gives more keyframes in turns and KITTI 07 mono with local BA Sim(3) ATE
+    # 0.340 -> 0.293 (07 from frames 20/40/80 0.228/0.182/0.206 -> 0.212/0.176/0.198, KITTI 06 0.034 -> 0.035),
+    # but odometry alone (no backend) 07 0.343 -> 1.60 and the synthetic monocular loop-closing test's
+    # correction falls short (error /3.8 instead of /5): kept at 0.7.
+    tracked_ratio_mono: float = param(0.7, "the same tracked-points ratio for monocular")
+    translation_m: float = param(0.0, "insert when moved farther than this from the reference keyframe, metres (0: off)")
+    # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
+    close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...")
+    close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points")
+
+
+@dataclass(frozen=True)
+class LocalMapConfig:
+    """The local map the frame is tracked against, and the points keyframes create."""
+
+    keyframes: int = param(8, "covisible keyframes whose points form the local map")
+    max_points_per_keyframe: int = param(1000, "new points created per keyframe (depth sensors)")
+    cull_min_found_ratio: float = param(0.25, "cull points found in fewer than this ratio of the frames they were visible in")
+    max_map_points: int = param(200_000, "beyond this, the oldest points outside the local window are dropped (flat memory)")
+
+
+@dataclass(frozen=True)
+class MonoInitConfig:
+    """Monocular map initialization from two views."""
+
+    min_matches: int = param(80, "matches to the reference frame needed to try an initialization")
+    min_parallax_deg: float = param(1.0, "the 50th largest point parallax must exceed this (ORB-SLAM), degrees")
+    rotation_parallax_deg: float = param(0.3, "median rotation-compensated parallax below this is pure rotation (never initializes)")
+    max_frames: int = param(30, "restart the reference frame after this many frames without success")
+    match_ratio: float = param(0.9, "ratio test of the matching to the reference frame")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the matching to the reference frame (ORB)")
+    min_depth_points: int = param(50, "stereo/RGB-D: a map starts on a frame with max(2 * tracking.min_inliers, this) points with depth")
+
+
+@dataclass(frozen=True)
+class MonoMappingConfig:
+    """Monocular triangulation of new points at keyframes."""
+
+    # 1.15 deg is ORB-SLAM2's cos-parallax < 0.9998. With 0.5 deg the low-parallax points made in turns came
+    # out too far for their keyframes' baseline (KITTI 07 second turn, pairs at 0.7-1.0 deg median parallax,
+    # frames 140-150: depth/true 1.3-1.6 x the baseline's scale error) and PnP on them scaled the motion up.
+    # The scale jump through the first turn (estimated/true step 1.00 -> 1.25, frames 25-45) is not from this
+    # and remains. Sim(3) ATE with local BA, 0.5 -> 1.15 deg: KITTI 07 (160 frames) 0.385 -> 0.340, 07 from
+    # frames 20/40/80: 0.236/0.200/0.249 -> 0.228/0.182/0.206, KITTI 06 0.039 -> 0.034. Without a backend
+    # (odometry alone) the fewer, unrefined points drift worse: 07 0.276 -> 0.343.
+    min_parallax_deg: float = param(1.15, "new points need at least this parallax between their two keyframes, degrees")
+    triangulation_keyframes: int = param(3, "a new keyframe triangulates with this many previous ones")
+    match_ratio: float = param(0.8, "ratio test of the keypoint matching between keyframes")
+    max_reproj_sigmas: float = param(2.45, "new points need reprojection errors below this many octave sigmas (sqrt of chi2 5.991)")
+
+
+@dataclass(frozen=True)
+class DenseConfig:
+    """RGB-D dense alignment (point-to-plane ICP + photometric) that refines or bridges feature poses."""
+
+    icp_fallback: bool = param(True, "a frame with no feature pose is aligned by depth ICP to the last tracked one before it counts as lost")
+    icp_photometric: bool = param(True, "the depth ICP fallback also aligns the grey images (dense RGB-D odometry)")
+    # the refinement is kept when the depths agree at least as well (Tracker._refine_with_depth)
+    refine: bool = param(True, "a feature pose on few inliers is refined by dense alignment to the last tracked frame")
+    refine_max_inliers: int = param(150, "feature poses on fewer inliers than this are refined densely")
+    refine_downsample: int = param(2, "dense alignment runs on images reduced this many times (1: full resolution)")
+    links: bool = param(True, "keyframes posed by dense alignment keep that relative pose in local BA (vslam.backend.dense_links)")
+    max_depth: float = param(6.0, "metres; dense alignment and dense links use depths up to min(depth.max_depth, this)")
+    doubtful_agreement: float = param(0.9, "a feature pose whose depths agree less than this is also refined from the prediction and from no motion")
+
+
+@dataclass(frozen=True)
 class FrontendConfig:
-    """Frontend settings.
+    """Frontend settings."""
 
-    Attributes:
-        association: ``match`` (descriptors, guided by projecting the local map into the predicted
-            pose) or ``track`` (KLT optical flow from the previous frame, re-detection when tracks thin out).
-        motion: ``3d2d`` (PnP against the local map, the default), ``3d3d`` (3D-3D alignment of the
-            frame's depth/stereo points to the map; stereo and RGB-D only) or ``2d2d`` (essential matrix
-            between consecutive frames chained as ``C_n = C_{n-1} T_n``, scaled by depth for RGB-D/stereo
-            and by the relative scale of triangulated points for monocular).
-    """
-
-    association: str = "match"
-    motion: str = "3d2d"
-
-    # --- depth (RGB-D) / stereo
-    min_depth: float = 0.1  # metres
-    max_depth: float = 10.0  # metres (RGB-D)
-    stereo_max_depth_baselines: float = 60.0  # stereo points farther than this many baselines are "far"
-    stereo_max_dy: float = 1.5  # px, rectified rows must agree
-
-    # --- pose estimation
-    pnp_reproj_px: float = 3.0  # RANSAC / inlier threshold in pixels
-    pnp_iterations: int = 100
-    pose_from_prediction: bool = False  # skip PnP (LM from the prediction, RANSAC) when the robust refinement from the prediction holds; 7-Scenes odometry ATE 0.32 vs 0.055 m: fast motions mislead it
-    align_inlier_m: float = 0.03  # 3D-3D RANSAC threshold at 1 m depth (scaled with depth^2 for RGB-D noise)
-    min_inliers: int = 20  # fewer inliers than this means the frame is lost
-    essential_px: float = 1.0  # 2D-2D RANSAC threshold in pixels
-    two_view_depth_scale_only: bool = False  # 2d2d with depth: True keeps the essential matrix's translation direction and takes only its scale from depth
-    two_view_min_parallax_deg: float = 1.0  # 2d2d: below this the reference frame is kept (translation unobservable)
-
-    # --- association
-    search_radius_px: float = 12.0  # guided matching radius around the predicted projection
-    search_radius_lost_px: float = 30.0  # wider radius when few matches were found
-    max_descriptor_distance: float = 64.0  # Hamming (ORB); float descriptors use ratio only
-    match_ratio: float = 0.9  # best/second-best ratio in guided matching
-    klt_min_tracks: int = 300  # re-detect when fewer KLT tracks survive
-    klt_max_tracks: int = 1000  # re-detection tops the tracks up to this many
-    klt_window: int = 15
-    klt_levels: int = 3
-
-    # --- keyframes (ORB-SLAM style: track-quality and time based)
-    kf_max_frames: int = 20  # insert a keyframe at least every this many frames
-    kf_min_frames: int = 0
-    kf_tracked_ratio: float = 0.75  # insert when fewer than this ratio of the reference keyframe's points are tracked
-    # the same for monocular (ORB-SLAM's thRefRatio). 0.8 gives more keyframes in turns and KITTI 07 mono
-    # with local BA Sim(3) ATE 0.340 -> 0.293 (07 from frames 20/40/80 0.228/0.182/0.206 -> 0.212/0.176/0.198,
-    # KITTI 06 0.034 -> 0.035), but odometry alone (no backend) 07 0.343 -> 1.60 and the synthetic
-    # monocular loop-closing test's correction falls short (error /3.8 instead of /5): kept at 0.7.
-    kf_tracked_ratio_mono: float = 0.7
-    kf_translation_m: float = 0.0  # insert when moved farther than this from the reference keyframe (0: off)
-
-    # --- local map
-    local_keyframes: int = 8  # covisible keyframes whose points form the local map
-    max_points_per_keyframe: int = 1000  # new points created per keyframe (depth sensors)
-    cull_min_found_ratio: float = 0.25  # cull points found in fewer than this ratio of the frames they were visible in
-    max_map_points: int = 200_000  # keep memory flat: oldest points outside the local window are dropped beyond this
-
-    # --- monocular initialization
-    init_min_matches: int = 80
-    init_min_parallax_deg: float = 1.0  # the 50th largest point parallax must exceed this (ORB-SLAM)
-    init_rotation_parallax_deg: float = 0.3  # median rotation-compensated parallax below this = pure rotation, never initializes
-    init_max_frames: int = 30  # restart the reference frame after this many frames without success
-    # for triangulating new points at keyframes; 1.15 deg is ORB-SLAM2's cos-parallax < 0.9998. With 0.5 deg
-    # the low-parallax points made in turns came out too far for their keyframes' baseline (KITTI 07 second
-    # turn, pairs at 0.7-1.0 deg median parallax, frames 140-150: depth/true 1.3-1.6 x the baseline's scale
-    # error) and PnP on them scaled the motion up. The scale jump through the first turn (estimated/true step
-    # 1.00 -> 1.25, frames 25-45) is not from this and remains. Sim(3)
-    # ATE with local BA, 0.5 -> 1.15 deg: KITTI 07 (160 frames) 0.385 -> 0.340,
-    # 07 from frames 20/40/80: 0.236/0.200/0.249 -> 0.228/0.182/0.206, KITTI 06 0.039 -> 0.034. Without a
-    # backend (odometry alone) the fewer, unrefined points drift worse: 07 0.276 -> 0.343.
-    mono_min_parallax_deg: float = 1.15
-    mono_triangulation_keyframes: int = 3  # new keyframes triangulate with this many previous ones
-
-    # --- loss / recovery
-    max_lost_frames: int = 3  # after this many consecutive lost frames, re-initialize a new map segment
-    depth_icp_fallback: bool = True  # RGB-D: a frame with no feature pose is aligned by depth ICP to the last tracked one before it counts as lost
-    # RGB-D: a feature pose on fewer than depth_refine_max_inliers inliers is refined by dense alignment
-    # (point-to-plane ICP + photometric, on images reduced depth_refine_downsample times) to the last
-    # tracked frame, kept when the depths agree at least as well (Tracker._refine_with_depth)
-    depth_refine: bool = True
-    depth_refine_max_inliers: int = 150
-    depth_refine_downsample: int = 2
-    dense_links: bool = True  # RGB-D: keyframes posed by dense alignment keep that relative pose in local BA (vslam.backend.dense_links)
-    depth_icp_photometric: bool = True  # the depth ICP fallback also aligns the grey images (dense RGB-D odometry), at depth_refine_downsample
+    association: str = param("match", "match (descriptors, guided by projecting the local map) or track (KLT optical flow)")
+    motion: str = param("3d2d", "3d2d (PnP against the local map), 3d3d (3D-3D alignment; stereo/RGB-D) or 2d2d (essential matrix)")
+    depth: DepthConfig = section(DepthConfig, "depth and stereo measurements", ("",))
+    tracking: TrackingConfig = section(TrackingConfig, "pose estimation and loss", ("",))
+    matching: MatchingConfig = section(MatchingConfig, "descriptor association with the local map", ("",))
+    klt: KLTTrackingConfig = section(KLTTrackingConfig, "KLT optical-flow association", ("klt_",))
+    two_view: TwoViewConfig = section(TwoViewConfig, "essential-matrix (2d2d) motion", ("two_view_",))
+    keyframes: KeyframesConfig = section(KeyframesConfig, "keyframe decision", ("kf_",))
+    local_map: LocalMapConfig = section(LocalMapConfig, "local map and point creation", ("local_", ""))
+    init: MonoInitConfig = section(MonoInitConfig, "monocular initialization", ("init_",))
+    mono: MonoMappingConfig = section(MonoMappingConfig, "monocular point triangulation", ("mono_",))
+    dense: DenseConfig = section(DenseConfig, "RGB-D dense alignment", ("depth_", "dense_"))
 
     def __post_init__(self) -> None:
         if self.association not in ASSOCIATIONS:
             raise ConfigError(f"frontend.association must be one of {ASSOCIATIONS}, got {self.association!r}")
         if self.motion not in MOTIONS:
             raise ConfigError(f"frontend.motion must be one of {MOTIONS}, got {self.motion!r}")
-        if self.min_inliers < 6:
-            raise ConfigError(f"frontend.min_inliers must be >= 6, got {self.min_inliers}")
-        if self.depth_refine_downsample < 1:
-            raise ConfigError(f"frontend.depth_refine_downsample must be >= 1 (1 = full resolution), got {self.depth_refine_downsample}")
+        if self.tracking.min_inliers < 6:
+            raise ConfigError(f"frontend.tracking.min_inliers must be >= 6, got {self.tracking.min_inliers}")
+        if self.dense.refine_downsample < 1:
+            raise ConfigError(f"frontend.dense.refine_downsample must be >= 1 (1 = full resolution), got {self.dense.refine_downsample}")
 
     def check_sensor(self, sensor: str) -> None:
         """Raise :class:`ConfigError` for a motion method the sensor cannot support."""

@@ -10,7 +10,7 @@ the median translation error per step (3.5 -> 1.5 cm; rotation ~0.8 deg either w
 tracker's feature poses (cabinet odometry, 57 steps), the photometric alignment brings the mean
 step error from 1.63 deg / 53 mm to 0.87 deg / 18 mm at full resolution and 0.86 deg / 12 mm on
 half-resolution images (``downsample=2``, 80 instead of 220 ms); the tracker uses it to refine
-weak feature poses and in its fallback (``frontend.depth_refine``, ``frontend.depth_icp_photometric``).
+weak feature poses and in its fallback (``frontend.dense.refine``, ``frontend.dense.icp_photometric``).
 The result is accepted only when the aligned depths agree
 (:func:`depth_agreement`), so a slide along a plane (the ICP degeneracy of flat scenes) is refused
 whenever the scene has too little structure to pin it down.

@@ -61,12 +61,12 @@ class MonoInitializer:
         """Attempt initialization from correspondences ``ref.uv_undist[ref_idx] <-> cur.uv_undist[cur_idx]``."""
         self.attempts += 1
         cfg = self.cfg
-        if self.ref is None or len(ref_idx) < cfg.init_min_matches:
+        if self.ref is None or len(ref_idx) < cfg.init.min_matches:
             return None
         x1 = self.ref.uv_undist[ref_idx]
         x2 = cur.uv_undist[cur_idx]
-        R, t, mask, status = essential_pose(x1, x2, self.K, cfg.essential_px * 2.0, cfg.init_rotation_parallax_deg)
-        if status != "ok" or mask.sum() < cfg.init_min_matches * 0.6:
+        R, t, mask, status = essential_pose(x1, x2, self.K, cfg.tracking.essential_px * 2.0, cfg.init.rotation_parallax_deg)
+        if status != "ok" or mask.sum() < cfg.init.min_matches * 0.6:
             log.debug("init: status %s, %d inliers", status, int(mask.sum()))
             return None
         T_cur_ref = make_T(R, t)
@@ -75,14 +75,14 @@ class MonoInitializer:
         e2, z2 = reprojection_error_depth(T_cur_ref, self.K, X, x2[mask])
         T_ref_cur = np.linalg.inv(T_cur_ref)
         par = ray_parallax_deg(np.eye(4), T_ref_cur, X)
-        thr = 4.0 * cfg.essential_px
+        thr = 4.0 * cfg.tracking.essential_px
         good = (z1 > 0) & (z2 > 0) & (e1 < thr) & (e2 < thr) & (par > 0.2) & np.all(np.isfinite(X), axis=1)
-        if good.sum() < cfg.init_min_matches * 0.5:
+        if good.sum() < cfg.init.min_matches * 0.5:
             return None
         # ORB-SLAM's test: the 50th largest parallax must exceed the threshold
         par_sorted = np.sort(par[good])[::-1]
         med_par = float(par_sorted[min(50, len(par_sorted) - 1)])
-        if med_par < cfg.init_min_parallax_deg:
+        if med_par < cfg.init.min_parallax_deg:
             return None
         scale = 1.0 / float(np.median(z1[good]))
         T_cur_ref[:3, 3] *= scale

@@ -21,17 +21,17 @@ def need_keyframe(
         n_tracked_ref: map points of the reference keyframe matched in this frame.
         n_ref_points: map points the reference keyframe observes.
         n_inliers: pose inliers of this frame.
-        translation_m: distance from the reference keyframe (only used with ``kf_translation_m > 0``).
+        translation_m: distance from the reference keyframe (only used with ``keyframes.translation_m > 0``).
         force: a caller-side reason (e.g. KLT re-detection, few close points).
-        tracked_ratio: overrides ``cfg.kf_tracked_ratio`` (monocular uses a higher one).
+        tracked_ratio: overrides ``cfg.keyframes.tracked_ratio`` (monocular uses a higher one).
     """
-    if frames_since_kf < cfg.kf_min_frames:
+    if frames_since_kf < cfg.keyframes.min_frames:
         return False
-    if force or frames_since_kf >= cfg.kf_max_frames:
+    if force or frames_since_kf >= cfg.keyframes.max_frames:
         return True
-    ratio = cfg.kf_tracked_ratio if tracked_ratio is None else tracked_ratio
+    ratio = cfg.keyframes.tracked_ratio if tracked_ratio is None else tracked_ratio
     if n_ref_points > 0 and n_tracked_ref < ratio * n_ref_points:
         return True
-    if cfg.kf_translation_m > 0 and translation_m > cfg.kf_translation_m:
+    if cfg.keyframes.translation_m > 0 and translation_m > cfg.keyframes.translation_m:
         return True
     return False

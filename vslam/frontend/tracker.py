@@ -10,7 +10,7 @@ One :class:`Tracker` serves the three sensors; the choices are
   points), ``2d2d`` (essential matrix between consecutive frames, ``C_n = C_{n-1} T_n``, scaled by
   depth or, for monocular, by the relative scale of triangulated points).
 
-A frame with too few inliers is *lost* (no pose); after ``max_lost_frames`` lost frames the tracker
+A frame with too few inliers is *lost* (no pose); after ``tracking.max_lost_frames`` lost frames the tracker
 re-initializes a new map segment anchored at the last good pose, so a run always continues.
 """
 from __future__ import annotations
@@ -122,7 +122,7 @@ class Tracker:
         self._last_depth: tuple[np.ndarray, np.ndarray] | None = None  # (depth image, T_world_cam) of the last tracked frame
         self._last_gray: np.ndarray | None = None  # grey image of the last tracked frame (RGB-D)
         self.n_depth_refined = 0  # feature poses replaced by their dense RGB-D refinement (see _refine_with_depth)
-        # RGB-D, frontend.dense_links: {kf_id: DenseLink} for keyframes posed by dense alignment to the
+        # RGB-D, frontend.dense.links: {kf_id: DenseLink} for keyframes posed by dense alignment to the
         # previous keyframe (vslam.backend.dense_links: local BA keeps that relative pose)
         self.dense_links: dict = {}
         self._dense_rel: np.ndarray | None = None  # this frame's T_prev_cur when dense alignment posed it
@@ -191,11 +191,11 @@ class Tracker:
 
     def _add_dense_link(self, frame: Frame, kf_id: int, prev_kf_id: int, T_prev_cur: np.ndarray) -> None:
         """Record that keyframe ``kf_id`` was posed by dense alignment to keyframe ``prev_kf_id``."""
-        if not self.cfg.dense_links or kf_id is None or kf_id == prev_kf_id:
+        if not self.cfg.dense.links or kf_id is None or kf_id == prev_kf_id:
             return
         from vslam.map.dense_links import DenseLink, sample_depth_grid
 
-        uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.max_depth, 6.0))
+        uv, z = sample_depth_grid(frame.depth, self.K, max_depth=min(self.cfg.depth.max_depth, self.cfg.dense.max_depth))
         if len(z):
             self.dense_links[kf_id] = DenseLink(kf_id, prev_kf_id, T_prev_cur.copy(), uv, z)
 
@@ -222,9 +222,9 @@ class Tracker:
                     # move the others by the median predicted flow
                     flow = np.median(init[has] - prev.uv[has], axis=0)
                     init[~has] += flow
-            uv, ok = klt_track(self.prev_gray, gray, prev.uv, init, cfg.klt_window, cfg.klt_levels)
-            if init is not None and ok.sum() < 0.5 * len(prev):  # a bad prediction: retry from zero flow
-                uv2, ok2 = klt_track(self.prev_gray, gray, prev.uv, None, cfg.klt_window, cfg.klt_levels)
+            uv, ok = klt_track(self.prev_gray, gray, prev.uv, init, cfg.klt.window, cfg.klt.levels)
+            if init is not None and ok.sum() < self.cfg.klt.retry_ratio * len(prev):  # a bad prediction: retry from zero flow
+                uv2, ok2 = klt_track(self.prev_gray, gray, prev.uv, None, cfg.klt.window, cfg.klt.levels)
                 if ok2.sum() > ok.sum():
                     uv, ok = uv2, ok2
             klt_prev_idx = np.flatnonzero(ok)
@@ -246,8 +246,8 @@ class Tracker:
         feats, self._prepared_feats = (self._prepared_feats if mask is None else None), None  # from prepare()
         if feats is None:
             feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
-        if self.cfg.association == "track" and len(feats) > self.cfg.klt_max_tracks:
-            feats = feats.subset(np.unique(np.linspace(0, len(feats) - 1, self.cfg.klt_max_tracks).astype(np.int64)))
+        if self.cfg.association == "track" and len(feats) > self.cfg.klt.max_tracks:
+            feats = feats.subset(np.unique(np.linspace(0, len(feats) - 1, self.cfg.klt.max_tracks).astype(np.int64)))
         n = len(feats)
         uv = np.asarray(feats.uv, dtype=float).reshape(-1, 2)
         obs = Observation(
@@ -273,7 +273,7 @@ class Tracker:
                 from vslam.errors import DatasetError
 
                 raise DatasetError(f"frame {frame.index} ({frame.path}) has no depth image but sensor is rgbd")
-            obs.depth = sample_depth(frame.depth, obs.uv, cfg.min_depth, cfg.max_depth)
+            obs.depth = sample_depth(frame.depth, obs.uv, cfg.depth.min_depth, cfg.depth.max_depth)
             obs.u_right = obs.uv_undist[:, 0] - self.bf / obs.depth
         elif self.sensor == "stereo":
             if frame.image_right is None:
@@ -289,7 +289,7 @@ class Tracker:
             if obs.u_right is not None and len(obs.u_right) == n:
                 d0 = obs.uv[:, 0] - obs.u_right  # last frame's disparity as the initial guess
             obs.depth, obs.u_right = stereo_by_flow(
-                gray, right, obs.uv, self.camera, cfg.stereo_max_depth_baselines, cfg.stereo_max_dy, cfg.min_depth, d0,
+                gray, right, obs.uv, self.camera, cfg.depth.stereo_max_depth_baselines, cfg.depth.stereo_max_dy, cfg.depth.min_depth, d0,
             )
         else:
             obs.depth = np.full(n, np.nan)
@@ -302,7 +302,7 @@ class Tracker:
     def _initialize(self, frame: Frame, gray: np.ndarray, obs: Observation, klt_prev_idx) -> TrackOutput:
         if self.sensor != "mono":
             valid = np.isfinite(obs.depth)
-            if valid.sum() < max(2 * self.cfg.min_inliers, 50):
+            if valid.sum() < max(2 * self.cfg.tracking.min_inliers, self.cfg.init.min_depth_points):
                 self._set_prev(obs, gray)
                 return TrackOutput(None, "initializing", False, 0)
             self.segment += 1
@@ -319,18 +319,18 @@ class Tracker:
     def _initialize_mono(self, frame: Frame, gray: np.ndarray, obs: Observation) -> TrackOutput:
         cfg = self.cfg
         init = self.initializer
-        if init.ref is None or init.attempts >= cfg.init_max_frames:
+        if init.ref is None or init.attempts >= cfg.init.max_frames:
             self._set_mono_reference(frame, gray, obs)
             return TrackOutput(None, "initializing", False, 0)
         t0 = time.perf_counter()
         if cfg.association == "match":
-            ref_idx, cur_idx = brute_force_match(init.ref.descriptors, obs.descriptors, self.binary, ratio=0.9,
-                                                 max_distance=64.0 if self.binary else None)
+            ref_idx, cur_idx = brute_force_match(init.ref.descriptors, obs.descriptors, self.binary, ratio=cfg.init.match_ratio,
+                                                 max_distance=cfg.init.max_descriptor_distance if self.binary else None)
         else:
             cur_idx = np.arange(len(obs))
             ref_idx = obs.anchor_idx.copy()
         self.timers["association"] += time.perf_counter() - t0
-        if len(ref_idx) < cfg.init_min_matches:
+        if len(ref_idx) < cfg.init.min_matches:
             # too few correspondences left: this frame becomes the new reference
             self._set_mono_reference(frame, gray, obs)
             return TrackOutput(None, "initializing", False, int(len(ref_idx)))
@@ -385,11 +385,11 @@ class Tracker:
         for ts, ref_idx, uv in self.initializer.pending:
             pid = kf0.point_ids[ref_idx]
             has = pid >= 0
-            if has.sum() < self.cfg.min_inliers:
+            if has.sum() < self.cfg.tracking.min_inliers:
                 continue
-            T_cw, m = pnp_ransac(self.map.points.position[pid[has]], uv[has], self.K, None, self.cfg.pnp_reproj_px,
-                                 self.cfg.pnp_iterations)
-            if T_cw is not None and m.sum() >= self.cfg.min_inliers:
+            T_cw, m = pnp_ransac(self.map.points.position[pid[has]], uv[has], self.K, None, self.cfg.tracking.pnp_reproj_px,
+                                 self.cfg.tracking.pnp_iterations)
+            if T_cw is not None and m.sum() >= self.cfg.tracking.min_inliers:
                 out.append((ts, inv_se3(T_cw)))
         return out
 
@@ -423,7 +423,7 @@ class Tracker:
     # ------------------------------------------------------------------ tracking
     def _local_point_ids(self) -> np.ndarray:
         if self._local_ids is None:
-            kfs = self.map.local_keyframes(self.ref_kf, self.cfg.local_keyframes) if self.ref_kf is not None else []
+            kfs = self.map.local_keyframes(self.ref_kf, self.cfg.local_map.keyframes) if self.ref_kf is not None else []
             self._local_ids = self.map.local_point_ids(kfs)
         ids = self._local_ids
         return ids[self.map.points.alive[ids]]
@@ -438,7 +438,7 @@ class Tracker:
                 T_world_cam, n_inl = self._relocalize(obs)
         if T_world_cam is None:
             return self._lost(frame, gray, obs)
-        if cfg.depth_refine and self.sensor == "rgbd" and cfg.motion != "2d2d" and n_inl < cfg.depth_refine_max_inliers:
+        if cfg.dense.refine and self.sensor == "rgbd" and cfg.motion != "2d2d" and n_inl < cfg.dense.refine_max_inliers:
             T_world_cam = self._refine_with_depth(frame, gray, T_world_cam)
         # ---------------------------------------------------------- keyframe?
         t0 = time.perf_counter()
@@ -455,15 +455,15 @@ class Tracker:
         n_ref = self._kf_ref_tracked
         force = False
         if cfg.association == "track":
-            force = len(obs) < cfg.klt_min_tracks or (obs.point_ids >= 0).sum() < cfg.klt_min_tracks * 0.5
+            force = len(obs) < cfg.klt.min_tracks or (obs.point_ids >= 0).sum() < cfg.klt.min_tracks * cfg.klt.min_mapped_ratio
         if self.sensor != "mono" and cfg.motion != "2d2d":
             # depth sensors: few close tracked points means the map is thinning (ORB-SLAM2 "close points")
             close = np.isfinite(obs.depth) & (obs.point_ids >= 0)
-            force |= close.sum() < 100 and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > 70
-        if self._dense_rel is not None and cfg.dense_links and self._last_tracked_kf is not None:
+            force |= close.sum() < cfg.keyframes.close_tracked_min and (np.isfinite(obs.depth) & (obs.point_ids < 0)).sum() > cfg.keyframes.close_untracked_min
+        if self._dense_rel is not None and cfg.dense.links and self._last_tracked_kf is not None:
             force = True  # posed by dense alignment to a keyframe: a keyframe keeps that link for local BA
         moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
-        ratio = cfg.kf_tracked_ratio_mono if self.sensor == "mono" else cfg.kf_tracked_ratio
+        ratio = cfg.keyframes.tracked_ratio_mono if self.sensor == "mono" else cfg.keyframes.tracked_ratio
         is_kf = need_keyframe(cfg, self.frames_since_kf, n_tracked_ref, n_ref, n_inl, moved, force, ratio)
         log.debug("frame %d: %d inliers, %d/%d of the reference keyframe's points, force %s -> keyframe %s",
                   frame.index, n_inl, n_tracked_ref, n_ref, force, is_kf)
@@ -508,8 +508,8 @@ class Tracker:
         (projective point-to-plane ICP from the motion prediction, :func:`vslam.frontend.depth_icp.align_depth`).
         If the depths agree, the frame becomes a keyframe of fresh depth points in the *same* map
         segment (a later loop closure can still correct the whole map) instead of a lost frame and,
-        after ``max_lost_frames``, a new segment with an extrapolated origin."""
-        if (not self.cfg.depth_icp_fallback or self.sensor != "rgbd" or self._last_depth is None
+        after ``tracking.max_lost_frames``, a new segment with an extrapolated origin."""
+        if (not self.cfg.dense.icp_fallback or self.sensor != "rgbd" or self._last_depth is None
                 or frame.depth is None or self.motion_model.T_world_last is None):
             return None
         t0 = time.perf_counter()
@@ -517,7 +517,7 @@ class Tracker:
         # from the motion prediction and from no motion (a turn the prediction did not foresee): the
         # better-agreeing alignment
         guesses = [inv_se3(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
-        T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=self.cfg.depth_icp_photometric)
+        T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=self.cfg.dense.icp_photometric)
         self.timers["pose"] += time.perf_counter() - t0
         if T_prev_cur is None:
             log.info("frame %d: depth ICP refused (%.2f of the depths agree)", frame.index, agree)
@@ -548,9 +548,9 @@ class Tracker:
         grays = (self._last_gray, gray) if photometric and self._last_gray is not None else (None, None)
         best, best_agree = None, 0.0
         for T_guess in guesses:
-            T, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.min_depth,
-                                   min(self.cfg.max_depth, 6.0), gray_prev=grays[0], gray_cur=grays[1],
-                                   downsample=self.cfg.depth_refine_downsample if photometric else 1)
+            T, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, self.cfg.depth.min_depth,
+                                   min(self.cfg.depth.max_depth, self.cfg.dense.max_depth), gray_prev=grays[0], gray_cur=grays[1],
+                                   downsample=self.cfg.dense.refine_downsample if photometric else 1)
             if T is not None and (best is None or agree > best_agree):
                 best, best_agree = T, agree
             elif best is None:
@@ -575,7 +575,7 @@ class Tracker:
         T_guess = inv_se3(T_world_prev) @ T_world_cam
         agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess)
         guesses = [T_guess]
-        if agree0 < 0.9:  # a doubtful feature pose: also from the motion prediction and from no motion
+        if agree0 < self.cfg.dense.doubtful_agreement:  # a doubtful feature pose: also from the motion prediction and from no motion
             guesses += [inv_se3(T_world_prev) @ self.motion_model.predict(), np.eye(4)]
         T_prev_cur, agree = self._align_to_last(frame, gray, guesses, photometric=True)
         self.timers["pose"] += time.perf_counter() - t0
@@ -593,7 +593,7 @@ class Tracker:
         self.n_lost_run += 1
         self.state = "lost"
         log.info("frame %d lost (%d in a row)", frame.index, self.n_lost_run)
-        if self.n_lost_run >= self.cfg.max_lost_frames:
+        if self.n_lost_run >= self.cfg.tracking.max_lost_frames:
             self._reinitialize()
             if self.sensor != "mono":  # depth sensors restart a map segment on this very frame
                 obs.point_ids[:] = -1
@@ -632,7 +632,7 @@ class Tracker:
         if cfg.association == "match":
             obs.point_ids[:] = -1
             tree = cKDTree(obs.uv_undist) if len(obs) else None
-            radius = cfg.search_radius_lost_px if relocalize else cfg.search_radius_px
+            radius = cfg.matching.search_radius_lost_px if relocalize else cfg.matching.search_radius_px
             # first pass: the previous frame's map points (TrackWithMotionModel); the rest of the
             # local map follows at the refined pose
             first = np.zeros(0, np.int64)
@@ -640,21 +640,21 @@ class Tracker:
                 first = self.prev.point_ids[self.prev.point_ids >= 0]
                 first = first[pts.alive[first]]
             m = np.zeros(0, np.int64)
-            if len(first) >= 3 * cfg.min_inliers:
+            if len(first) >= cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers:
                 vis_ids, proj, _ = project_local_points(pts, first, T_cw_pred, self.camera, check_distance=False)
                 m, k = self._guided(vis_ids, proj, obs, radius, tree)
-            if len(m) < 3 * cfg.min_inliers:
+            if len(m) < cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers:
                 vis_ids, proj, _ = project_local_points(pts, local_ids, T_cw_pred, self.camera)
                 m, k = self._guided(vis_ids, proj, obs, radius, tree)
-            if len(m) < 3 * cfg.min_inliers and not relocalize:
-                m, k = self._guided(vis_ids, proj, obs, cfg.search_radius_lost_px, tree)
-            if len(m) < cfg.min_inliers:
+            if len(m) < cfg.tracking.enough_matches_factor * cfg.tracking.min_inliers and not relocalize:
+                m, k = self._guided(vis_ids, proj, obs, cfg.matching.search_radius_lost_px, tree)
+            if len(m) < cfg.tracking.min_inliers:
                 m, k, vis_ids, T_cw_pred = self._match_without_prediction(obs, local_ids)
             obs.point_ids[k] = vis_ids[m]
         self.timers["association"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         T_cw, inl = self._estimate(obs, T_cw_pred, final=cfg.association != "match")
-        if (T_cw is None or inl.sum() < cfg.min_inliers) and cfg.association == "match" and T_cw_pred is not None:
+        if (T_cw is None or inl.sum() < cfg.tracking.min_inliers) and cfg.association == "match" and T_cw_pred is not None:
             # the prediction misled the guided search (a fast or wide-baseline motion): relocalize
             # against the local map by descriptors alone
             t1 = time.perf_counter()
@@ -674,19 +674,19 @@ class Tracker:
             rest = unique_ids(len(pts), local_ids, first, exclude=kept)
             vis_ids, proj, _ = project_local_points(pts, rest, T_cw, self.camera)
             free = obs.point_ids < 0
-            m, k = self._guided(vis_ids, proj, obs, max(4.0, cfg.pnp_reproj_px * 1.5), tree, free)
+            m, k = self._guided(vis_ids, proj, obs, max(cfg.matching.refine_radius_min_px, cfg.tracking.pnp_reproj_px * cfg.matching.refine_radius_factor), tree, free)
             obs.point_ids[k] = vis_ids[m]
             vis_ids = np.concatenate([kept, vis_ids])
             dt_assoc = time.perf_counter() - t1
             self.timers["association"] += dt_assoc
             t0 += dt_assoc  # not pose time
             T_cw2, inl2 = self._estimate(obs, T_cw, refine_only=True)
-            if T_cw2 is not None and inl2.sum() >= inl.sum() * 0.8:
+            if T_cw2 is not None and inl2.sum() >= inl.sum() * cfg.tracking.second_pass_keep_ratio:
                 T_cw, inl = T_cw2, inl2
             else:  # the wider association did not hold: back to the first pass
                 obs.point_ids = first_ids
         self.timers["pose"] += time.perf_counter() - t0
-        if T_cw is None or inl.sum() < cfg.min_inliers:
+        if T_cw is None or inl.sum() < cfg.tracking.min_inliers:
             obs.point_ids[:] = -1 if cfg.association == "match" else obs.point_ids
             return None, int(0 if inl is None else inl.sum())
         sel = np.flatnonzero(obs.point_ids >= 0)
@@ -702,8 +702,8 @@ class Tracker:
         empty = np.zeros(0, np.int64)
         if len(local_ids) == 0 or obs.descriptors is None or self.map.points.descriptor is None:
             return empty, empty, local_ids, None
-        i1, i2 = brute_force_match(self.map.points.descriptor[local_ids], obs.descriptors, self.binary, ratio=0.8,
-                                   max_distance=self.cfg.max_descriptor_distance if self.binary else None)
+        i1, i2 = brute_force_match(self.map.points.descriptor[local_ids], obs.descriptors, self.binary,
+                                   ratio=self.cfg.matching.brute_force_ratio, max_distance=self.cfg.matching.max_descriptor_distance if self.binary else None)
         return i1, i2, local_ids, None
 
     def _guided(self, vis_ids, proj, obs: Observation, radius: float, tree, free: np.ndarray | None = None):
@@ -711,7 +711,7 @@ class Tracker:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         m, k, _ = guided_match(
             proj, self.map.points.descriptor[vis_ids], obs.uv_undist, obs.descriptors, radius, self.binary,
-            self.cfg.max_descriptor_distance if self.binary else None, self.cfg.match_ratio, kp_tree=tree,
+            self.cfg.matching.max_descriptor_distance if self.binary else None, self.cfg.matching.match_ratio, kp_tree=tree,
             kp_free=free,
         )
         return m, k
@@ -722,21 +722,21 @@ class Tracker:
         the associated points in index order)``."""
         cfg = self.cfg
         sel = np.flatnonzero(obs.point_ids >= 0)
-        if len(sel) < cfg.min_inliers:
+        if len(sel) < cfg.tracking.min_inliers:
             return None, np.zeros(len(sel), bool)
         Xw = self.map.points.position[obs.point_ids[sel]]
         uv = obs.uv_undist[sel]
         if cfg.motion == "3d3d":
             z = obs.depth[sel]
             has = np.isfinite(z)
-            if has.sum() < cfg.min_inliers:
+            if has.sum() < cfg.tracking.min_inliers:
                 return None, np.zeros(len(sel), bool)
             Xc = self.camera.backproject(uv[has], z[has])
             if self.sensor == "stereo":
-                thr = np.maximum(cfg.align_inlier_m, 2.0 * z[has] ** 2 / self.bf)
+                thr = np.maximum(cfg.tracking.align_inlier_m, cfg.tracking.align_stereo_disparity_px * z[has] ** 2 / self.bf)
             else:
-                thr = cfg.align_inlier_m * np.maximum(1.0, z[has] ** 2)
-            T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=100 if not refine_only else 30, rng=self.rng)
+                thr = cfg.tracking.align_inlier_m * np.maximum(1.0, z[has] ** 2)
+            T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=cfg.tracking.align_iterations if not refine_only else cfg.tracking.align_refine_iterations, rng=self.rng)
             inl = np.zeros(len(sel), bool)
             if T_wc is None:
                 return None, inl
@@ -745,16 +745,16 @@ class Tracker:
         # 3D-2D
         sigma = obs.sigma[sel]
         ur = None if obs.u_right is None else obs.u_right[sel]
-        if T_cw_guess is not None and (refine_only or cfg.pose_from_prediction):
+        if T_cw_guess is not None and (refine_only or cfg.tracking.pose_from_prediction):
             # matches were gated around the prediction: robust pose optimization straight from it
             # (ORB-SLAM's TrackWithMotionModel); RANSAC only when that explains too few matches
             T_cw, inl = refine_pose(T_cw_guess, Xw, uv, self.K, sigma, ur, self.bf, rounds=2 if refine_only else 3)
-            if refine_only or inl.sum() >= max(cfg.min_inliers, 0.6 * len(sel)):
+            if refine_only or inl.sum() >= max(cfg.tracking.min_inliers, cfg.tracking.prediction_min_inlier_ratio * len(sel)):
                 return T_cw, inl
         # with depth, a first-pass pose only places the second association pass (gate 4.5 px),
         # which a refinement with the depth residuals follows: one LM round on its inliers is
         # enough there (monocular KITTI 07 odometry drifts more with it: 1.16 vs < 1 m)
-        T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.pnp_reproj_px, cfg.pnp_iterations,
+        T_cw, m = pnp_ransac(Xw, uv, self.K, T_cw_guess, cfg.tracking.pnp_reproj_px, cfg.tracking.pnp_iterations,
                              refine_rounds=1 if not final and self.sensor != "mono" else 2)
         if T_cw is None:
             return None, np.zeros(len(sel), bool)
@@ -780,8 +780,8 @@ class Tracker:
         if ref is None or len(ref) < 8 or len(obs) < 8:
             return None, 0
         if cfg.association == "match":
-            i1, i2 = brute_force_match(ref.descriptors, obs.descriptors, self.binary, ratio=0.8,
-                                       max_distance=cfg.max_descriptor_distance if self.binary else None)
+            i1, i2 = brute_force_match(ref.descriptors, obs.descriptors, self.binary, ratio=cfg.two_view.match_ratio,
+                                       max_distance=cfg.matching.max_descriptor_distance if self.binary else None)
             obs.point_ids[:] = -1
         else:
             r = obs.ref2d_idx if obs.ref2d_idx is not None else np.full(len(obs), -1)
@@ -790,14 +790,14 @@ class Tracker:
         self.timers["association"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
-            if len(i1) < cfg.min_inliers:
+            if len(i1) < cfg.tracking.min_inliers:
                 return None, int(len(i1))
             x1, x2 = ref.uv_undist[i1], obs.uv_undist[i2]
             # with depth the rotation must come from E even at small parallax (a rotation-only fit would
             # absorb sideways translation); the translation then comes from the depths
-            min_par = cfg.two_view_min_parallax_deg if self.sensor == "mono" else 0.0
-            R, t, mask, status = essential_pose(x1, x2, self.K, cfg.essential_px, min_par)
-            if R is None or mask.sum() < cfg.min_inliers:
+            min_par = cfg.two_view.min_parallax_deg if self.sensor == "mono" else 0.0
+            R, t, mask, status = essential_pose(x1, x2, self.K, cfg.tracking.essential_px, min_par)
+            if R is None or mask.sum() < cfg.tracking.min_inliers:
                 return None, int(mask.sum())
             advance = status == "ok"
             if self.sensor != "mono":
@@ -808,7 +808,7 @@ class Tracker:
                 Xp = self.camera.backproject(x1[both], z1[both])
                 Xc = self.camera.backproject(x2[both], z2[both])
                 diff = Xc - Xp @ R.T
-                if status == "ok" and self.cfg.two_view_depth_scale_only:
+                if status == "ok" and self.cfg.two_view.depth_scale_only:
                     t_m = float(np.median(diff @ t)) * t  # scale of the unit translation from depth
                 else:  # the rotation from the images, the translation from the depths
                     t_m = np.median(diff, axis=0)
@@ -822,7 +822,8 @@ class Tracker:
                     # the constant-velocity model; the reference stays
                     T_world_cam = self.motion_model.predict()
                     T_world_cam[:3, :3] = self._T_world_ref2d[:3, :3] @ R.T
-            if advance or len(i1) < 0.5 * len(ref) or len(i1) < 4 * cfg.min_inliers:
+            if advance or len(i1) < cfg.two_view.advance_ratio * len(ref) \
+                    or len(i1) < cfg.two_view.advance_min_inliers_factor * cfg.tracking.min_inliers:
                 X = getattr(self, "_pending_X", None)
                 self._set_ref2d(obs, T_world_cam, None if X is None else X[1], None if X is None else X[0])
             self._pending_X = None
@@ -834,22 +835,24 @@ class Tracker:
         """Monocular 2D-2D translation with the relative scale: points triangulated from the previous
         pair and from this pair, both in the reference camera frame, compared by the median ratio of
         their distances (Scaramuzza & Fraundorfer, "Visual Odometry", RAM 2011, eq. (16))."""
+        tv = self.cfg.two_view
         T_cur_ref_unit = make_T(R, t)
         idx = np.flatnonzero(mask)
         X = triangulate_dlt(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
         e1, za = reprojection_error_depth(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
         e2, zb = reprojection_error_depth(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
-        good = (za > 0) & (zb > 0) & (e1 < 2.0) & (e2 < 2.0) & (ray_parallax_deg(np.eye(4), inv_se3(T_cur_ref_unit), X) > 0.2)
+        good = (za > 0) & (zb > 0) & (e1 < tv.max_reproj_px) & (e2 < tv.max_reproj_px) \
+            & (ray_parallax_deg(np.eye(4), inv_se3(T_cur_ref_unit), X) > tv.min_point_parallax_deg)
         # fallback: the distance the motion model expects between the reference and this frame
         T_pred = self.motion_model.predict()
         s = float(np.linalg.norm(T_pred[:3, 3] - self._T_world_ref2d[:3, 3])) if T_pred is not None else 1.0
-        if self._mono_X is not None and good.sum() >= 8:
+        if self._mono_X is not None and good.sum() >= tv.scale_min_points:
             old_idx, old_X = self._mono_X
             lookup = np.full(len(ref), -1, np.int64)
             lookup[old_idx] = np.arange(len(old_idx))
             j = lookup[i1[idx]]
             common = good & (j >= 0)
-            if common.sum() >= 8:
+            if common.sum() >= tv.scale_min_points:
                 ratio = np.linalg.norm(old_X[j[common]], axis=1) / np.linalg.norm(X[common], axis=1)
                 s = float(np.median(ratio))
         if not np.isfinite(s) or s <= 0:
@@ -874,9 +877,9 @@ class Tracker:
         kf_id = self.map.next_keyframe_id()
         if cfg.association == "track":
             # top up the tracks with new corners away from the existing ones
-            mask = detect_mask(gray.shape, obs.uv, max(8, int(self.fcfg.cell_size // 2)))
+            mask = detect_mask(gray.shape, obs.uv, max(cfg.klt.mask_min_radius_px, int(self.fcfg.cell_size // 2)))
             new = self._detect(frame, gray, mask)
-            room = max(min(cfg.klt_max_tracks, self.fcfg.n_features) - len(obs), 0)  # bounded number of tracks
+            room = max(min(cfg.klt.max_tracks, self.fcfg.n_features) - len(obs), 0)  # bounded number of tracks
             if len(new) > room:
                 new = new.subset(np.unique(np.linspace(0, len(new) - 1, room).astype(np.int64)) if room else np.zeros(0, np.int64))
             new.anchor_kf = np.full(len(new), kf_id, dtype=np.int64)
@@ -903,10 +906,10 @@ class Tracker:
             has = kf.point_ids >= 0
             if kf.descriptors is not None and self.map.points.descriptor is not None:
                 self.map.points.descriptor[kf.point_ids[has]] = kf.descriptors[has]
-        self.map.cull_points(cfg.cull_min_found_ratio)
-        local = self.map.local_keyframes(kf.id, cfg.local_keyframes)
-        if self.map.points.n_alive > cfg.max_map_points:
-            self.map.limit_points(cfg.max_map_points, local)
+        self.map.cull_points(cfg.local_map.cull_min_found_ratio)
+        local = self.map.local_keyframes(kf.id, cfg.local_map.keyframes)
+        if self.map.points.n_alive > cfg.local_map.max_map_points:
+            self.map.limit_points(cfg.local_map.max_map_points, local)
             # ids changed: remap the live observation
             kf_ids = kf.point_ids
             obs.point_ids = kf_ids.copy()
@@ -923,7 +926,7 @@ class Tracker:
         cand = np.flatnonzero((kf.point_ids < 0) & np.isfinite(kf.depth))
         if len(cand) == 0:
             return
-        cand = cand[np.argsort(kf.depth[cand], kind="stable")][: self.cfg.max_points_per_keyframe]
+        cand = cand[np.argsort(kf.depth[cand], kind="stable")][: self.cfg.local_map.max_points_per_keyframe]
         Xc = self.camera.backproject(kf.uv_undist[cand], kf.depth[cand])
         Xw = Xc @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]
         desc = None if kf.descriptors is None else kf.descriptors[cand]
@@ -940,14 +943,14 @@ class Tracker:
         if cfg.association == "match":
             # the previous keyframes of this segment, newest first
             olds = sorted((k for k in self.map.keyframes.values() if k.segment == kf.segment and k.id != kf.id),
-                          key=lambda k: -k.id)[: cfg.mono_triangulation_keyframes]
+                          key=lambda k: -k.id)[: cfg.mono.triangulation_keyframes]
             for old in olds:
                 a = np.flatnonzero(old.point_ids < 0)
                 b = np.flatnonzero(kf.point_ids < 0)
                 if len(a) < 8 or len(b) < 8:
                     continue
-                i1, i2 = brute_force_match(old.descriptors[a], kf.descriptors[b], self.binary, ratio=0.8,
-                                           max_distance=cfg.max_descriptor_distance if self.binary else None)
+                i1, i2 = brute_force_match(old.descriptors[a], kf.descriptors[b], self.binary, ratio=cfg.mono.match_ratio,
+                                           max_distance=cfg.matching.max_descriptor_distance if self.binary else None)
                 self._triangulate_pairs(old, a[i1], kf, b[i2], obs)
         else:
             anchors = obs.anchor_kf
@@ -973,8 +976,9 @@ class Tracker:
         s1 = np.power(self.scale_factor, kf1.octave[idx1].astype(float))
         s2 = np.power(self.scale_factor, kf2.octave[idx2].astype(float))
         par = ray_parallax_deg(kf1.T_world_cam, kf2.T_world_cam, X)
-        good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < 2.45 * s1) & (e2 < 2.45 * s2) \
-            & (par > self.cfg.mono_min_parallax_deg)
+        good = np.all(np.isfinite(X), axis=1) & (z1 > 0) & (z2 > 0) & (e1 < self.cfg.mono.max_reproj_sigmas * s1) \
+            & (e2 < self.cfg.mono.max_reproj_sigmas * s2) \
+            & (par > self.cfg.mono.min_parallax_deg)
         if not good.any():
             return
         # a keypoint index may appear twice (KLT duplicates): keep the first

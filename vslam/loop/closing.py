@@ -222,7 +222,7 @@ class LoopCloser:
             # of other map segments are skipped (another coordinate frame: that would be map merging)
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
             order = sorted((i for i in cand.group if i not in exclude and i in same),
-                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[: 1 if single else 3]
+                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[: 1 if single else self.config.closing.max_tries]
             for match_id in order:
                 ver = self._verify(kf, match_id, single)
                 if ver == "implausible":
@@ -323,7 +323,9 @@ class LoopCloser:
                       ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
                       align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
                       search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                      seed=kf.id, refine_ransac=cc.refine_ransac_pose, **ex)
+                      seed=kf.id, refine_ransac=cc.refine_ransac_pose,
+                      guided_max_distance=cc.guided_max_descriptor_distance, guided_ratio=cc.guided_ratio,
+                      min_search_radius_px=cc.min_search_radius_px, **ex)
 
     def _verify(self, kf: KeyFrame, match_id: int, single: bool = False) -> Verified | str | None:
         """Verify the candidate; accepted with ``min_inliers`` map-point inliers, or when
@@ -516,7 +518,8 @@ class LoopCloser:
             if len(vis) == 0:
                 continue
             m, kp, _ = guided_match(proj, store.descriptor[vis], other.uv_undist, other.descriptors,
-                                    self.config.closing.fuse_radius_px, True, 50.0, 0.9)
+                                    self.config.closing.fuse_radius_px, True,
+                                    self.config.closing.fuse_max_descriptor_distance, self.config.closing.fuse_ratio)
             n_fused += self._assign(other, kp, vis[m], remap)
         if n_fused:
             apply_remap(self.map.keyframes.values(), remap)

@@ -5,26 +5,18 @@ from dataclasses import dataclass
 
 from vslam.errors import ConfigError
 from vslam.map.config import DatabaseConfig  # the keyframe database is in map/; re-exported here
+from vslam.param import param, section
 
 
 @dataclass(frozen=True)
 class VocabularyConfig:
-    """How a bag-of-binary-words vocabulary is trained (Galvez-Lopez & Tardos 2012, sec. IV).
+    """How a bag-of-binary-words vocabulary is trained (Galvez-Lopez & Tardos 2012, sec. IV)."""
 
-    Attributes:
-        k: branching factor of the vocabulary tree.
-        levels: depth ``L`` of the tree; at most ``k**L`` words.
-        max_iterations: k-majority iterations per node (stops earlier when assignments settle).
-        seed: seed of the k-means++ seeding, so training is reproducible.
-        direct_index_level: tree level (1 = children of the root) whose node ids form the
-            "direct index" used to match features only within the same node.
-    """
-
-    k: int = 10
-    levels: int = 4
-    max_iterations: int = 10
-    seed: int = 0
-    direct_index_level: int = 2
+    k: int = param(10, "branching factor of the vocabulary tree")
+    levels: int = param(4, "depth L of the tree; at most k**L words")
+    max_iterations: int = param(10, "k-majority iterations per node (stops earlier when assignments settle)")
+    seed: int = param(0, "seed of the k-means++ seeding (reproducible training)")
+    direct_index_level: int = param(2, "tree level (1 = the root's children) whose nodes form the direct index used to match features")
 
     def __post_init__(self) -> None:
         if self.k < 2 or self.k > 20:
@@ -41,26 +33,14 @@ class VocabularyConfig:
 
 @dataclass(frozen=True)
 class LoopDetectorConfig:
-    """Loop candidate detection with temporal consistency (ORB-SLAM's consistency groups).
+    """Loop candidate detection with temporal consistency (ORB-SLAM's consistency groups)."""
 
-    Attributes:
-        min_score: minimum normalized score of a candidate (see ``DatabaseConfig.normalize_with``).
-        max_candidates: database results considered per query.
-        group_radius: with no covisibility callback, keyframes whose ids differ by at most this are
-            neighbours (they form a candidate's group).
-        exclude_radius: with no covisible set given, keyframes whose ids are within this of the
-            query id are excluded from the query (they are its temporal neighbours).
-        min_consistent: a group must be found in this many consecutive queries to be accepted.
-        accumulated_ratio: groups whose accumulated score is below this fraction of the best
-            group's are dropped (ORB-SLAM uses 0.75).
-    """
-
-    min_score: float = 0.5
-    max_candidates: int = 10
-    group_radius: int = 20
-    exclude_radius: int = 30
-    min_consistent: int = 3
-    accumulated_ratio: float = 0.75
+    min_score: float = param(0.5, "minimum normalized score of a candidate (see database.normalize_with)")
+    max_candidates: int = param(10, "database results considered per query")
+    group_radius: int = param(20, "with no covisibility callback, keyframes whose ids differ by at most this form a group")
+    exclude_radius: int = param(30, "with no covisible set, keyframes with ids within this of the query are excluded")
+    min_consistent: int = param(3, "a group must be found in this many consecutive queries to be accepted")
+    accumulated_ratio: float = param(0.75, "groups below this fraction of the best group's accumulated score are dropped (ORB-SLAM: 0.75)")
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1:
@@ -76,90 +56,53 @@ class LoopDetectorConfig:
 @dataclass(frozen=True)
 class ClosingConfig:
     """Geometric verification and correction of a loop candidate (ORB-SLAM, Mur-Artal et al. 2015,
-    sec. VII-B/C/D; ORB-SLAM2 sec. VI-D).
+    sec. VII-B/C/D; ORB-SLAM2 sec. VI-D)."""
 
-    Attributes:
-        candidate_neighbours: the candidate's strongest covisible keyframes whose points are matched
-            together with its own.
-        match_ratio: Lowe ratio of the brute-force descriptor matching (query keypoints vs points).
-        max_descriptor_distance: Hamming bits; worse descriptor matches are dropped.
-        min_matches: descriptor matches needed before RANSAC.
-        align_threshold_m: RGB-D/stereo 3D-3D RANSAC inlier distance, metres (scaled by depth^2 for
-            points beyond 1 m, as depth noise grows quadratically).
-        align_threshold_rel: monocular Sim(3) RANSAC inlier distance as a fraction of the median
-            distance of the matched points from the candidate camera.
-        search_radius_px: guided matching (projection of the candidate's points at the estimated
-            pose) search radius.
-        min_inliers: inliers after guided matching and pose refinement needed to accept a loop
-            (RGB-D / stereo).
-        min_inliers_mono: the same for monocular.
-        min_inlier_ratio: accepted loops also need this fraction of the guided matches as inliers.
-        max_correction_deg / max_correction_m: a loop whose correction of the query pose is larger
-            is rejected (a drift of this size is implausible between two consistent keyframes);
-            ``max_correction_m`` is ignored for monocular (unknown scale).
-        covisibility_edge_weight: covisibility links at least this strong enter the essential graph.
-        loop_edge_information: information multiplier of the loop edges relative to the odometry
-            (spanning tree, covisibility) edges: the verified loop pose is far more certain than one
-            odometry step (it is measured against the old map directly).
-        min_keyframes_between: no loop is detected within this many keyframes after the last one.
-        connected_min_weight: keyframes sharing at least this many points with the query are its
-            "connected" keyframes (ORB-SLAM: 15): excluded from the loop query and moved with it by a
-            correction. Weaker covisibility links (old points re-observed on a revisit) are loop
-            candidates.
-        fuse_radius_px: search radius when fusing the candidate's points into the query's neighbours.
-        global_ba: run a global bundle adjustment after the pose-graph correction.
-        match_keypoints_with_depth: RGB-D / stereo: the candidate group's keypoints with depth but no
-            (alive) map point join the verification's RANSAC, matched keyframe by keyframe: those of
-            the candidate and its ``depth_keypoint_neighbours`` strongest covisible keyframes (each
-            keyframe costs one brute-force matching).
-        confirm_min_keyframes / confirm_min_inliers / confirm_max_m / confirm_max_deg: RGB-D
-            loops below ``min_inliers`` (and single detections that temporal consistency has not
-            confirmed) are accepted when they have ``confirm_min_inliers`` inliers and this many of the
-            query's connected keyframes, verified against the same candidate group with as many
-            inliers, agree on the correction within these bounds (ORB-SLAM3's covisibility check;
-            :meth:`vslam.loop.closing.LoopCloser._confirmed`). 0 keyframes turns the rule off.
-        confirm_neighbours: the query's strongest connected keyframes tried for that confirmation.
-        refine_ransac_pose: refine the 3D-3D RANSAC pose on its inliers' reprojection errors before
-            the guided matching (``refine_ransac`` of :func:`vslam.loop.verification.verify`).
-        confirm_min_map_inliers: a loop accepted by confirmation also needs this many map-point
-            inliers after guided matching and refinement (0: a RANSAC-only pose is accepted too).
-        global_ba_weak_loops: run ``global_ba`` also after a loop accepted by confirmation (fewer than
-            ``min_inliers`` map-point inliers). Off: such a loop keeps the essential graph's correction.
-            With ~10 loop observations against thousands along the trajectory the global BA re-opens
-            the loop: TUM fr3/cabinet (loop 57 -> 2, 10 inliers), error of the last keyframe relative
-            to keyframe 2 (GT) 15 mm after the essential graph, 106 mm after the global BA (74 mm with
-            no loop), ATE 0.032 -> 0.050 m (the same 0.050 without the essential graph first: it is
-            the BA's optimum, not its initialization); u_right residual 0.026 -> 0.036.
-    """
-
-    candidate_neighbours: int = 10
-    match_ratio: float = 0.8
-    max_descriptor_distance: float = 64.0
-    min_matches: int = 20
-    align_threshold_m: float = 0.05
-    align_threshold_rel: float = 0.03
-    search_radius_px: float = 8.0
-    min_inliers: int = 40
-    min_inliers_mono: int = 40
-    min_inlier_ratio: float = 0.3
-    max_correction_deg: float = 45.0
-    max_correction_m: float = 2.0
-    covisibility_edge_weight: int = 100
-    loop_edge_information: float = 10.0
-    min_keyframes_between: int = 10
-    connected_min_weight: int = 15
-    fuse_radius_px: float = 4.0
-    global_ba: bool = True
-    match_keypoints_with_depth: bool = True
-    depth_keypoint_neighbours: int = 10
-    confirm_min_keyframes: int = 1
-    confirm_min_inliers: int = 15
-    confirm_max_m: float = 0.2
-    confirm_max_deg: float = 4.0
-    confirm_neighbours: int = 3
-    refine_ransac_pose: bool = True
-    confirm_min_map_inliers: int = 6
-    global_ba_weak_loops: bool = False
+    candidate_neighbours: int = param(10, "the candidate's strongest covisible keyframes whose points are matched with its own")
+    match_ratio: float = param(0.8, "Lowe ratio of the brute-force descriptor matching (query keypoints vs points)")
+    max_descriptor_distance: float = param(64.0, "Hamming bits; worse descriptor matches are dropped")
+    min_matches: int = param(20, "descriptor matches needed before RANSAC")
+    align_threshold_m: float = param(0.05, "RGB-D/stereo 3D-3D RANSAC inlier distance, metres (times depth^2 beyond 1 m)")
+    align_threshold_rel: float = param(0.03, "monocular Sim(3) RANSAC inlier distance, fraction of the matched points' median distance")
+    search_radius_px: float = param(8.0, "guided matching radius at the estimated pose, pixels")
+    min_inliers: int = param(40, "inliers after guided matching and refinement needed to accept a loop (RGB-D / stereo)")
+    min_inliers_mono: int = param(40, "the same for monocular")
+    min_inlier_ratio: float = param(0.3, "accepted loops also need this fraction of the guided matches as inliers")
+    max_correction_deg: float = param(45.0, "a loop correcting the query pose by more than this rotation is rejected, degrees")
+    max_correction_m: float = param(2.0, "the same for translation, metres (ignored for monocular: unknown scale)")
+    covisibility_edge_weight: int = param(100, "covisibility links at least this strong enter the essential graph")
+    # the verified loop pose is far more certain than one odometry step (it is measured against the old map)
+    loop_edge_information: float = param(10.0, "information multiplier of loop edges relative to odometry edges")
+    min_keyframes_between: int = param(10, "no loop is detected within this many keyframes after the last one")
+    # Weaker covisibility links (old points re-observed on a revisit) are loop candidates.
+    connected_min_weight: int = param(15, "keyframes sharing this many points with the query are connected: excluded and moved with it (ORB-SLAM: 15)")
+    fuse_radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels")
+    fuse_max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching")
+    fuse_ratio: float = param(0.9, "ratio test of that fusion's guided matching")
+    max_tries: int = param(3, "keyframes of a consistent candidate group verified at most (best match first)")
+    guided_max_descriptor_distance: float = param(64.0, "Hamming bound of the verification's guided matching")
+    guided_ratio: float = param(0.9, "ratio test of the verification's guided matching")
+    min_search_radius_px: float = param(3.0, "the second guided matching uses max(search_radius_px / 2, this), pixels")
+    global_ba: bool = param(True, "run a global bundle adjustment after the pose-graph correction")
+    match_keypoints_with_depth: bool = param(True, "RGB-D/stereo: the candidate group's keypoints with depth but no map point join the RANSAC")
+    depth_keypoint_neighbours: int = param(10, "strongest covisible keyframes of the candidate whose depth keypoints join (one matching each)")
+    # ORB-SLAM3's covisibility check (vslam.loop.closing.LoopCloser._confirmed): RGB-D loops below min_inliers
+    # (and single detections not yet temporally consistent) are accepted when they have confirm_min_inliers
+    # inliers and confirm_min_keyframes of the query's connected keyframes, verified against the same
+    # candidate group with as many inliers, agree on the correction within confirm_max_m / confirm_max_deg.
+    confirm_min_keyframes: int = param(1, "connected keyframes that must confirm a weak RGB-D loop (0: rule off)")
+    confirm_min_inliers: int = param(15, "inliers a weak RGB-D loop and each confirming keyframe need")
+    confirm_max_m: float = param(0.2, "confirming corrections agree within this translation, metres")
+    confirm_max_deg: float = param(4.0, "confirming corrections agree within this rotation, degrees")
+    confirm_neighbours: int = param(3, "the query's strongest connected keyframes tried for that confirmation")
+    refine_ransac_pose: bool = param(True, "refine the 3D-3D RANSAC pose on its inliers' reprojection errors before guided matching")
+    confirm_min_map_inliers: int = param(6, "a confirmed loop also needs this many map-point inliers after refinement (0: RANSAC-only ok)")
+    # With ~10 loop observations against thousands along the trajectory the global BA re-opens the loop: TUM
+    # fr3/cabinet (loop 57 -> 2, 10 inliers), error of the last keyframe relative to keyframe 2 (GT) 15 mm after
+    # the essential graph, 106 mm after the global BA (74 mm with no loop), ATE 0.032 -> 0.050 m (the same
+    # 0.050 without the essential graph first: it is the BA's optimum, not its initialization); u_right
+    # residual 0.026 -> 0.036.
+    global_ba_weak_loops: bool = param(False, "run global_ba also after a loop accepted by confirmation (off: keep the essential graph's correction)")
 
     def __post_init__(self) -> None:
         if self.min_inliers < 6 or self.min_inliers_mono < 6:
@@ -179,31 +122,18 @@ class ClosingConfig:
 @dataclass(frozen=True)
 class RelocalizationConfig:
     """Relocalization of a frame whose tracking failed (ORB-SLAM sec. V-C): BoW candidates, PnP
-    RANSAC, guided matching and pose refinement.
+    RANSAC, guided matching and pose refinement."""
 
-    Attributes:
-        max_candidates: keyframes (best raw BoW score first) tried.
-        match_ratio / max_descriptor_distance: descriptor matching of the frame to a candidate's points.
-        min_matches: matches needed to try PnP.
-        reproj_px: PnP RANSAC inlier threshold.
-        search_radius_px: guided matching radius at the PnP pose.
-        min_inliers: inliers after refinement needed to accept the pose (ORB-SLAM: 50).
-        recover_min_matches / recover_min_inliers: the tracker's fallback against its recent
-            keyframes (:meth:`Relocalizer.recover`; candidates known, not from place recognition):
-            descriptor matches to try RANSAC, map-point inliers after guided matching to accept.
-        recover_covisible: covisible keyframes of each recent keyframe whose points join that search.
-    """
-
-    max_candidates: int = 5
-    match_ratio: float = 0.8
-    max_descriptor_distance: float = 64.0
-    min_matches: int = 15
-    reproj_px: float = 4.0
-    search_radius_px: float = 8.0
-    min_inliers: int = 40
-    recover_min_matches: int = 10
-    recover_min_inliers: int = 20
-    recover_covisible: int = 5
+    max_candidates: int = param(5, "keyframes tried (best raw BoW score first)")
+    match_ratio: float = param(0.8, "Lowe ratio of the frame-to-candidate descriptor matching")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the frame-to-candidate descriptor matching")
+    min_matches: int = param(15, "matches needed to try PnP")
+    reproj_px: float = param(4.0, "PnP RANSAC inlier threshold, pixels")
+    search_radius_px: float = param(8.0, "guided matching radius at the PnP pose, pixels")
+    min_inliers: int = param(40, "inliers after refinement needed to accept the pose (ORB-SLAM: 50)")
+    recover_min_matches: int = param(10, "tracker fallback against its recent keyframes: descriptor matches to try RANSAC")
+    recover_min_inliers: int = param(20, "tracker fallback: map-point inliers after guided matching to accept")
+    recover_covisible: int = param(5, "tracker fallback: covisible keyframes of each recent keyframe whose points join")
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1 or self.min_inliers < 6 or self.min_matches < 6:
@@ -212,11 +142,11 @@ class RelocalizationConfig:
 
 @dataclass(frozen=True)
 class LoopConfig:
-    """All place-recognition and loop-closing settings (``enabled=false`` turns loop closing off)."""
+    """All place-recognition and loop-closing settings."""
 
-    enabled: bool = True
-    vocabulary: VocabularyConfig = VocabularyConfig()
-    database: DatabaseConfig = DatabaseConfig()
-    detector: LoopDetectorConfig = LoopDetectorConfig()
-    closing: ClosingConfig = ClosingConfig()
-    relocalization: RelocalizationConfig = RelocalizationConfig()
+    enabled: bool = param(True, "run place recognition and loop closing (false: off)")
+    vocabulary: VocabularyConfig = section(VocabularyConfig, "bag-of-words vocabulary training")
+    database: DatabaseConfig = section(DatabaseConfig, "keyframe database queries")
+    detector: LoopDetectorConfig = section(LoopDetectorConfig, "loop candidate detection")
+    closing: ClosingConfig = section(ClosingConfig, "loop verification and correction")
+    relocalization: RelocalizationConfig = section(RelocalizationConfig, "relocalization of lost frames")

@@ -83,13 +83,13 @@ def descriptor_candidates(feat: Features, store: MapPointStore, point_ids: np.nd
 
 def _refine(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera, T_cw: np.ndarray,
             kp_idx: np.ndarray, pids: np.ndarray, radius: float, scale_factor: float, bf: float,
-            check_distance: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            check_distance: bool, max_distance: float = 64.0, ratio: float = 0.9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Guided matching of ``group_pts`` at ``T_cw`` (keeping the given pairs), then pose refinement.
     Returns ``(T_cam_world, kp_idx, point_ids)`` of the inliers."""
     vis, proj, _ = project_local_points(store, group_pts, T_cw, camera, check_distance=check_distance)
     if len(vis):
         m, k, _ = guided_match(proj, store.descriptor[vis], feat.uv_undist, feat.descriptors, radius, True,
-                               64.0, 0.9)
+                               max_distance, ratio)
         # union with the given pairs (given ones win on conflicts)
         taken = np.zeros(len(feat.uv_undist), bool)
         taken[kp_idx] = True
@@ -110,7 +110,8 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
            align_threshold_rel: float = 0.03, search_radius_px: float = 8.0, scale_factor: float = 1.2,
            bf: float = 0.0, pnp_reproj_px: float = 4.0, seed: int = 0,
            extra_X: np.ndarray | None = None, extra_desc: np.ndarray | None = None,
-           extra_src: np.ndarray | None = None, refine_ransac: bool = False) -> Verified | None:
+           extra_src: np.ndarray | None = None, refine_ransac: bool = False, guided_max_distance: float = 64.0,
+           guided_ratio: float = 0.9, min_search_radius_px: float = 3.0) -> Verified | None:
     """Estimate the pose of ``feat`` against map points ``group_pts`` (ids into ``store``).
 
     1. descriptor matching (ratio + mutual) of the keypoints to the points;
@@ -118,6 +119,9 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
        (:func:`align_points`, SE(3) for metric sensors, Sim(3) ``with_scale`` for monocular),
        otherwise PnP RANSAC (:func:`vslam.geometry.pnp.solve_pnp`);
     3. two rounds of guided matching by projection + robust pose refinement.
+
+    ``guided_max_distance`` / ``guided_ratio``: descriptor bounds of the guided matching in 3, whose second
+    round searches ``max(search_radius_px / 2, min_search_radius_px)``.
 
     ``refine_ransac``: between 2 and 3, the 3D-3D RANSAC pose is refined on its inliers' reprojection
     (and ``u_right``) errors (:func:`refine_pose`) and the pairs that fail its chi-square test are
@@ -227,9 +231,9 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
         kp, pids = kp[pids >= 0], pids[pids >= 0]
     log.debug("verify: %d descriptor matches, %d RANSAC inliers", len(kp), n_ransac)
     T_cw_ransac = T_cw
-    for radius in (search_radius_px, max(search_radius_px / 2.0, 3.0)):
+    for radius in (search_radius_px, max(search_radius_px / 2.0, min_search_radius_px)):
         T_cw, kp, pids = _refine(feat, store, group_pts, camera, T_cw, kp, pids, radius, scale_factor, bf,
-                                 check_distance=not mono)
+                                 check_distance=not mono, max_distance=guided_max_distance, ratio=guided_ratio)
         if len(kp) < 6:  # too few map points to refine: the RANSAC pose, no map-point inliers
             return Verified(T_world_cam=inv_se3(T_cw_ransac), scale=scale, kp_idx=kp[:0], point_ids=pids[:0],
                             n_inliers=0, n_ransac=n_ransac)

@@ -5,27 +5,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from vslam.errors import ConfigError
+from vslam.param import param
 
 
 @dataclass(frozen=True)
 class PoseGraphConfig:
-    """SE(3) / Sim(3) pose-graph optimization (essential graph, ORB-SLAM2 Sec. VI-D).
+    """SE(3) / Sim(3) pose-graph optimization (essential graph, ORB-SLAM2 Sec. VI-D)."""
 
-    Attributes:
-        max_iterations: LM iterations.
-        relative_tolerance: LM relative error tolerance.
-        default_sigma_rotation: radians, edge std used when an edge gives no information.
-        default_sigma_translation: metres, idem.
-        default_sigma_scale: log-scale std of Sim(3) edges without information.
-        prior_sigma: std of the priors that hold fixed nodes (tiny = fixed).
-    """
-
-    max_iterations: int = 100
-    relative_tolerance: float = 1e-8
-    default_sigma_rotation: float = 0.01
-    default_sigma_translation: float = 0.05
-    default_sigma_scale: float = 0.01
-    prior_sigma: float = 1e-6
+    max_iterations: int = param(100, "LM iterations")
+    relative_tolerance: float = param(1e-8, "LM relative error tolerance")
+    default_sigma_rotation: float = param(0.01, "radians; edge rotation std when an edge gives no information")
+    default_sigma_translation: float = param(0.05, "metres; edge translation std when an edge gives no information")
+    default_sigma_scale: float = param(0.01, "log-scale std of Sim(3) edges without information")
+    prior_sigma: float = param(1e-6, "std of the priors that hold fixed nodes (tiny = fixed)")
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -35,33 +27,17 @@ class PoseGraphConfig:
                 raise ConfigError(f"pose graph config {name} must be > 0, got {getattr(self, name)}")
 
 
-
 @dataclass(frozen=True)
 class DatabaseConfig:
-    """Keyframe database query settings.
+    """Keyframe database query settings."""
 
-    Attributes:
-        normalize_with: how raw scores are normalized: ``"max"`` divides by the best raw score of
-            the query against its excluded (covisible) keyframes, ``"min"`` by the lowest of those
-            (ORB-SLAM's ``minScore``), ``"none"`` keeps raw L1 scores.
-        subtract_baseline: subtract the query's chance-level score (the median raw score over the
-            non-excluded keyframes) from raw and reference scores before dividing. With a small
-            vocabulary (the embedded default has 10^4 words) two unrelated images share many
-            words and score ~0.13; without this the ratio barely separates loops from chance.
-            Set False for plain DBoW2/ORB-SLAM behaviour.
-        min_baseline_keyframes: with ``subtract_baseline``, scores are normalized only once at
-            least this many non-excluded keyframes give a baseline (before that, raw scores).
-        min_common_words_ratio: keep only keyframes that share at least this fraction of the
-            largest number of words any keyframe shares with the query (ORB-SLAM uses 0.8).
-        merge_every: pending (recently added) keyframes are merged into the compressed inverted
-            index once there are this many (or 1/16 of the merged ones, whichever is more).
-    """
-
-    normalize_with: str = "max"
-    subtract_baseline: bool = True
-    min_baseline_keyframes: int = 8
-    min_common_words_ratio: float = 0.0
-    merge_every: int = 32
+    normalize_with: str = param("max", "scores divided by the best (max) or lowest (min, ORB-SLAM minScore) score against the covisible keyframes, or none")
+    # With a small vocabulary (the embedded default has 10^4 words) two unrelated images share many words and
+    # score ~0.13; without this the ratio barely separates loops from chance. False: plain DBoW2/ORB-SLAM.
+    subtract_baseline: bool = param(True, "subtract the query's chance-level score (median over non-excluded keyframes) before dividing")
+    min_baseline_keyframes: int = param(8, "with subtract_baseline, normalize only once this many keyframes give a baseline")
+    min_common_words_ratio: float = param(0.0, "keep keyframes sharing at least this fraction of the most words any keyframe shares (ORB-SLAM: 0.8)")
+    merge_every: int = param(32, "pending keyframes merge into the compressed inverted index once there are this many (or 1/16 of the merged)")
 
     def __post_init__(self) -> None:
         if self.normalize_with not in ("max", "min", "none"):
