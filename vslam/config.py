@@ -80,6 +80,8 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if value != value:  # NaN compares false everywhere and would silently disable a check
+            raise ConfigError(f"{key}: expected a number, got NaN")
         return float(value)
     if tp is str:
         if not isinstance(value, str):

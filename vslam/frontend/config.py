@@ -104,6 +104,9 @@ class FrontendConfig:
             raise ConfigError(f"frontend.motion must be one of {MOTIONS}, got {self.motion!r}")
         if self.min_inliers < 6:
             raise ConfigError(f"frontend.min_inliers must be >= 6, got {self.min_inliers}")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ConfigError(f"frontend.min_depth ({self.min_depth}) must be >= 0 and below frontend.max_depth "
+                              f"({self.max_depth}), metres")
         if self.depth_refine_downsample < 1:
             raise ConfigError(f"frontend.depth_refine_downsample must be >= 1 (1 = full resolution), got {self.depth_refine_downsample}")
 
