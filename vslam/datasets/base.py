@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
+from vslam.textfile import open_text
 from vslam.eval.trajectory import Trajectory
 from vslam.geometry.camera import PinholeCamera
 
@@ -216,7 +217,7 @@ def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> 
     path = require_file(path, what)
     ts: list[float] = []
     rows: list[list[str]] = []
-    with open(path, encoding="utf-8-sig") as fh:
+    with open_text(path, DatasetError) as fh:
         for lineno, line in enumerate(fh, 1):
             line = line.strip()
             if not line or line.startswith("#"):
@@ -333,10 +334,7 @@ def interpolate_poses(
 def _load_yaml(path: Path) -> dict:
     import yaml
 
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read camera file ({exc.strerror})") from None
+    text = open_text(path, CalibrationError).read()
     # OpenCV FileStorage YAML: drop the '%YAML:1.0' directive and '!!opencv-matrix' tags
     text = re.sub(r"^%YAML[: ]?1\.0\s*$", "", text, flags=re.M)
     text = text.replace("!!opencv-matrix", "")

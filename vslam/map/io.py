@@ -468,6 +468,7 @@ def load_map(
     slam_map.keyframes = {kf.id: kf for kf in keyframes}
     slam_map.points = points
     slam_map.covisibility = _unpack_covisibility(root, manifest, graph_arrays)
+    _check_references(root, slam_map)
     _unpack_map_attributes(root, manifest, slam_map)
 
     database = None
@@ -660,12 +661,18 @@ def _unpack_dict(root: Path, field: str, text: str, arrays: dict) -> dict | None
     return value
 
 
+_MAX_SPARE_CAPACITY = 1 << 20  # point_store rows allocated beyond 4x the saved ones at most
+
+
 def _unpack_points(root: Path, manifest: dict, arrays: dict) -> MapPointStore:
     layout = manifest["point_store"]
     n, cap = layout.get("rows"), layout.get("capacity")
     columns = layout.get("columns")
     if not isinstance(n, int) or not isinstance(cap, int) or n < 0 or cap < n or not isinstance(columns, dict):
         raise MapFormatError(f"{root / MANIFEST_FILE}: malformed point_store {layout}")
+    if cap > max(4 * n, _MAX_SPARE_CAPACITY):  # checked before allocating: a crafted capacity is no MemoryError
+        raise MapFormatError(f"{root / MANIFEST_FILE}: point_store capacity {cap} is implausible for {n} rows "
+                             f"(at most {max(4 * n, _MAX_SPARE_CAPACITY)}); the manifest is corrupted")
     store = MapPointStore(capacity=cap)
     ours = vars(store)
     for name, saved in columns.items():
@@ -709,8 +716,24 @@ def _unpack_covisibility(root: Path, manifest: dict, arrays: dict) -> dict[int, 
         links = graph.get(i)
         if links is None:
             raise MapFormatError(f"{root / COVISIBILITY_FILE}: edge ({i}, {j}) starts at keyframe {i}, not a graph node")
+        if j not in graph:
+            raise MapFormatError(f"{root / COVISIBILITY_FILE}: edge ({i}, {j}) ends at keyframe {j}, not a graph node")
         links[j] = w
     return graph
+
+
+def _check_references(root: Path, slam_map: Map) -> None:
+    """Every covisibility node is a keyframe and every keyframe pose is finite and rigid."""
+    missing = [k for k in slam_map.covisibility if k not in slam_map.keyframes]
+    if missing:
+        raise MapFormatError(f"{root / COVISIBILITY_FILE}: graph node {missing[0]} is not a keyframe of "
+                             f"{KEYFRAMES_FILE}; the map is corrupted")
+    for kf in slam_map.keyframes.values():
+        T = np.asarray(kf.T_world_cam, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]) \
+                or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-3):
+            raise MapFormatError(f"{root / KEYFRAMES_FILE}: keyframe {kf.id} pose is not a finite rigid "
+                                 "transform; the map is corrupted")
 
 
 def _unpack_map_attributes(root: Path, manifest: dict, slam_map: Map) -> None:
@@ -726,6 +749,13 @@ def _camera_from_json(root: Path, data: dict | None) -> PinholeCamera | None:
         return None
     try:
         kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-        return PinholeCamera(**kwargs)
-    except (TypeError, ValueError) as exc:
-        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {data} is malformed: {exc}") from exc
+        camera = PinholeCamera(**kwargs)
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {data} is malformed: {exc}") from None
+    numbers = {k: getattr(camera, k, None) for k in ("fx", "fy", "cx", "cy", "width", "height")}
+    ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in numbers.values())
+    if not ok or numbers["fx"] <= 0 or numbers["fy"] <= 0 or numbers["width"] < 1 or numbers["height"] < 1 \
+            or not all(isinstance(numbers[k], int) for k in ("width", "height")):
+        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {numbers} is invalid (positive finite focal "
+                             "lengths and whole-number image size needed); the map is corrupted")
+    return camera
