@@ -175,7 +175,7 @@ def open_run_dir(path: str | Path, inputs: tuple[str | Path, ...] = ()) -> RunDi
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(describe_os_error(exc, path)) from None
-    if any(p.suffix.lower() in _IMAGE_SUFFIXES for p in path.iterdir() if p.is_file()):
+    if any(p.suffix.lower() in _IMAGE_SUFFIXES and p.name not in RUN_OUTPUTS for p in path.iterdir() if p.is_file()):
         raise OutputError(f"{path}: holds images (an input folder?); choose an empty or previous run folder "
                           "for the outputs")
     probe = path / f".write-test-{uuid.uuid4().hex[:8]}"

@@ -271,7 +271,10 @@ def _run(system, frames, total, out, ground_truth, align, progress, on_frame, ex
             except OutputError as exc:
                 if error is None and output_error is None:
                     raise
-                log.error("%s", exc)  # the run's own error is the one to report
+                if output_error is not None:
+                    output_error += "; stats.json could not be written either"
+                else:
+                    log.error("%s", exc)  # the run's own error is the one to report
     if output_error is not None:
         raise OutputError(output_error)
     return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
@@ -279,19 +282,22 @@ def _run(system, frames, total, out, ground_truth, align, progress, on_frame, ex
 
 def _write_outputs(system: Any, out: Path, trajectory: Trajectory, stats: dict, extra_stats: dict | None) -> str | None:
     """Write the final trajectory, keyframes and map outputs; the first failure as one line (or None)."""
+    step = out / "trajectory.txt"
     try:
         if len(trajectory):
-            _atomic_write_tum(out / "trajectory.txt", trajectory)
-        with atomic_path(out / "keyframes.txt") as tmp:
+            _atomic_write_tum(step, trajectory)
+        step = out / "keyframes.txt"
+        with atomic_path(step) as tmp:
             write_tum(tmp, system.keyframe_trajectory())
         if hasattr(system, "save_map_outputs"):
+            step = out / "map"  # with sparse.ply and topology.*
             stats["outputs"] = system.save_map_outputs(out, metadata=extra_stats)
     except OutputError as exc:
         return str(exc)
     except OSError as exc:
         from vslam.outputs import describe_os_error
 
-        return describe_os_error(exc, out)
+        return describe_os_error(exc, step)
     except Exception as exc:  # the trajectory and stats are safe; report it in one line, don't lose them
         log.debug("writing the map outputs failed", exc_info=True)
         return f"{out}: writing the map outputs failed ({type(exc).__name__}: {exc})"
