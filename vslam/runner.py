@@ -3,10 +3,12 @@
 Outputs (the contract of ``vslam run``):
 
 * ``trajectory.txt``: TUM format, ``T_world_cam`` of every tracked frame with the dataset's
-  timestamps. Written and flushed frame by frame, so an interrupted or crashed run keeps what it
-  had; rewritten at the end with the final (optimized) poses.
+  timestamps. Written and flushed frame by frame, whole lines only (a failed write is cut back),
+  so an interrupted or crashed run keeps what it had; rewritten at the end (atomically) with the
+  final (optimized) poses.
 * ``keyframes.txt``: the keyframe trajectory, TUM format.
-* ``stats.json``: counts, timings (``read_ms``: mean wait of the tracker for a decoded frame;
+* ``stats.json``: counts (``skipped_frames``: unreadable frames the reader skipped), ``error`` when
+  the run failed or was stopped, timings (``read_ms``: mean wait of the tracker for a decoded frame;
   ``stage_ms``: the system's per-stage times), loops, and ATE/RPE when ground truth is known.
 * ``config.yaml``: the fully resolved configuration.
 

@@ -646,3 +646,56 @@ def test_ransac_iteration_count_is_finite():
     assert _ransac_iterations(1.0, 0.999, 1000) == 1
     assert _ransac_iterations(0.5, 0.999, 1000) == 52  # log(0.001) / log(1 - 0.125) = 51.7
     assert _ransac_iterations(1e-6, 0.999, 1000) == 1000
+
+
+# ----------------------------------------------------------------------------- other text inputs
+def _non_utf8(path: Path, good: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(good.encode() + b"\n# caf\xe9\n")
+    return path
+
+
+TEXT_CASES = {
+    "--config": lambda tmp, seq: (["run", seq, "-o", tmp / "run", "--no-progress", "--config",
+                                   _non_utf8(tmp / "c.yaml", "frontend: {}")], "c.yaml:2"),
+    "bench spec": lambda tmp, seq: (["bench", _non_utf8(tmp / "spec.yaml", "runs: []"), "-o", tmp / "b"],
+                                    "spec.yaml:2"),
+    "results.json": lambda tmp, seq: (["report", _non_utf8(tmp / "b" / "results.json", '{"rows": []}').parent,
+                                       "-o", tmp / "r.html"], "results.json:2"),
+    "stats.json": lambda tmp, seq: (["report", _non_utf8(tmp / "run" / "stats.json", '{"frames": 1}').parent,
+                                     "-o", tmp / "r.html"], "stats.json:2"),
+    "groundtruth.txt": lambda tmp, seq: (["eval", _non_utf8(tmp / "e.txt", "1 0 0 0 0 0 0 1"),
+                                          _non_utf8(tmp / "g.txt", "1 0 0 0 0 0 0 1")], "e.txt:2"),
+}
+
+
+@pytest.mark.parametrize("case", list(TEXT_CASES))
+def test_non_utf8_text_input(capsys, tmp_path, base_seq, case):
+    argv, word = TEXT_CASES[case](tmp_path, base_seq)
+    rc, _, err = cli(capsys, *argv)
+    one_error(err, rc, 2, word, "not UTF-8")
+
+
+def test_npz_header_claiming_a_huge_shape_is_refused_before_allocating(tmp_path, saved_map):
+    """A ``.npy`` header inside the map's zip patched to claim 10^12 rows (checksums fixed)."""
+    import hashlib
+    import re
+    import zipfile
+
+    from vslam.map.io import load_map
+
+    root = Path(shutil.copytree(saved_map, tmp_path / "map"))
+    with zipfile.ZipFile(root / "covisibility.npz") as zf:
+        members = {n: bytearray(zf.read(n)) for n in zf.namelist()}
+    npy = members["edges.npy"]
+    m = re.search(rb"'shape': \((\d+), 3\), \}( +)\n", npy)  # the header is padded with spaces
+    grow = 12 - len(m.group(1))
+    npy[m.start(1):m.end(2)] = b"9" * 12 + b", 3), }" + b" " * (len(m.group(2)) - grow)
+    with zipfile.ZipFile(root / "covisibility.npz", "w") as zf:  # stored, with valid CRCs
+        for n, b in members.items():
+            zf.writestr(n, bytes(b))
+    data = (root / "covisibility.npz").read_bytes()
+    _manifest(root, lambda mm: mm["files"]["covisibility.npz"].update(
+        bytes=len(data), sha256=hashlib.sha256(bytes(data)).hexdigest()))
+    with pytest.raises(MapFormatError, match=r"claims shape \(999999999999, 3\)"):
+        load_map(root.parent)

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.textfile import open_text
 
 #: metrics summarized per run: (row key, column title, number format)
 METRICS = (
@@ -249,10 +250,10 @@ def read_results(folder_or_file: str | Path) -> dict:
     path = Path(folder_or_file)
     if path.is_dir():
         path = path / "results.json"
+    if not path.is_file():
+        raise VslamError(f"{path}: no results.json here; run `vslam bench` first")
     try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise VslamError(f"{path}: no results.json here; run `vslam bench` first") from None
+        data = json.loads(open_text(path, VslamError).read())
     except ValueError as exc:
         raise VslamError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list):

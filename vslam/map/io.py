@@ -551,6 +551,7 @@ def _read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
         raise MapFormatError(f"{root / MANIFEST_FILE}: no array list for {name}")
     out = {}
     try:
+        _check_npz_sizes(path)
         with np.load(path, allow_pickle=False) as data:
             present = set(data.files)
             for key, s in spec.items():
@@ -569,6 +570,32 @@ def _read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error) as exc:
         raise MapFormatError(f"{path} is unreadable (truncated or corrupted): {exc}") from exc
     return out
+
+
+def _check_npz_sizes(path: Path) -> None:
+    """Before anything is allocated: every member is stored uncompressed (as :func:`save_map` writes
+    it, so its size is bounded by the file's, which ``map.json`` fixes) and its ``.npy`` header
+    claims no more bytes than the member holds (a crafted shape would otherwise allocate first)."""
+    from numpy.lib import format as npy
+
+    size = path.stat().st_size
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            if info.compress_type != zipfile.ZIP_STORED or info.file_size > size:
+                raise MapFormatError(f"{path}: member {info.filename!r} is compressed or larger than the file; "
+                                     "maps are written uncompressed by vslam")
+            with zf.open(info) as fh:
+                version = npy.read_magic(fh)
+                if version not in ((1, 0), (2, 0), (3, 0)):
+                    raise MapFormatError(f"{path}: member {info.filename!r} has .npy version {version}")
+                reader = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+                shape, _, dtype = reader(fh)
+                if dtype.hasobject:
+                    raise MapFormatError(f"{path}: member {info.filename!r} holds Python objects; not a vslam map")
+                claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if claimed > info.file_size:
+                    raise MapFormatError(f"{path}: array {info.filename!r} claims shape {shape} ({claimed} bytes) "
+                                         f"but holds {info.file_size} bytes; the map is corrupted")
 
 
 def _expect(root: Path, file: str, arrays: dict, key: str, shape: tuple) -> np.ndarray:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.textfile import open_text
 from vslam.outputs import atomic_write_text, check_output_file, inside
 
 log = logging.getLogger(__name__)
@@ -168,10 +169,10 @@ def load_run(folder: str | Path) -> RunData:
     from vslam.eval import evaluate_trajectories, read_trajectory
 
     folder = Path(folder)
+    if not (folder / "stats.json").is_file():
+        raise VslamError(f"{folder}: no stats.json; pass a `vslam run` output folder or a `vslam bench` folder")
     try:
-        stats = json.loads((folder / "stats.json").read_text())
-    except FileNotFoundError:
-        raise VslamError(f"{folder}: no stats.json; pass a `vslam run` output folder or a `vslam bench` folder") from None
+        stats = json.loads(open_text(folder / "stats.json", VslamError).read())
     except ValueError as exc:
         raise VslamError(f"{folder / 'stats.json'}: not valid JSON ({exc})") from None
     _check_stats(folder / "stats.json", stats)
