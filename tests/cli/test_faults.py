@@ -699,3 +699,33 @@ def test_npz_header_claiming_a_huge_shape_is_refused_before_allocating(tmp_path,
         bytes=len(data), sha256=hashlib.sha256(bytes(data)).hexdigest()))
     with pytest.raises(MapFormatError, match=r"claims shape \(999999999999, 3\)"):
         load_map(root.parent)
+
+
+# ------------------------------------------------------------------------------------ localize
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory, base_seq) -> Path:
+    from vslam.api import run_path
+
+    out = tmp_path_factory.mktemp("mapped") / "run"
+    run_path(base_seq, out, sensor="rgbd")
+    return out
+
+
+def test_localize_into_the_map_folder_is_refused(capsys, mapped, base_seq):
+    before = (mapped / "trajectory.txt").read_bytes()
+    rc, _, err = cli(capsys, "localize", mapped, base_seq, "-o", mapped, "--no-progress")
+    one_error(err, rc, 2, "is the input")
+    assert (mapped / "trajectory.txt").read_bytes() == before
+
+
+def test_localize_in_another_scene_counts_frames_not_localized(capsys, mapped, tmp_path):
+    """Random textures share no structure with the map: each frame is counted as not localized
+    (a RANSAC without inliers raised OverflowError here before, see the geometry cases below)."""
+    from tests.datasets.conftest import write_tum
+
+    other = write_tum(tmp_path / "other", n=6, size=(320, 240), camera_yaml="fx: 262.5\nfy: 262.5\ncx: 159.5\n"
+                      "cy: 119.5\nwidth: 320\nheight: 240\n")
+    rc, out, err = cli(capsys, "localize", mapped, other, "-o", tmp_path / "loc", "--no-progress")
+    assert rc == 0 and "Traceback" not in err, err
+    s = stats_of(tmp_path / "loc")
+    assert s["frames"] == 6 and s["localized"] == 0 and "error" not in s
