@@ -69,7 +69,9 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
     n = len(ds)
     if start_frame < 0 or start_frame >= n:
         raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
-    stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
+    if max_frames is not None and max_frames < 1:
+        raise DatasetError(f"--max-frames must be at least 1, got {max_frames}")
+    stop = n if max_frames is None else min(n, start_frame + max_frames)
     return ds, sensor, stop
 
 
@@ -121,6 +123,7 @@ def run_path(
             ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
                          "start_frame": start_frame},
+            inputs=(path,),
         )
     finally:
         if viewer is not None:

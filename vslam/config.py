@@ -25,6 +25,7 @@ from vslam.errors import ConfigError
 from vslam.param import doc_of, section
 
 log = logging.getLogger(__name__)
+from vslam.textfile import open_text
 
 
 def to_dict(cfg: Any) -> dict:
@@ -88,6 +89,8 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if value != value:  # NaN compares false everywhere and would silently disable a check
+            raise ConfigError(f"{key}: expected a number, got NaN")
         return float(value)
     if tp is str:
         if not isinstance(value, str):
@@ -287,7 +290,7 @@ def load_config(cls: type, path: str | Path | None = None, overrides: list[str] 
         if not path.is_file():
             raise ConfigError(f"{path}: config file not found")
         try:
-            data = yaml.safe_load(path.read_text()) or {}
+            data = yaml.safe_load(open_text(path, ConfigError).read()) or {}
         except yaml.YAMLError as exc:
             raise ConfigError(f"{path}: not valid YAML ({exc})") from None
         try:

@@ -32,3 +32,8 @@ class GeometryError(VslamError):
 
 class MapFormatError(VslamError):
     """A saved map is truncated, corrupted or of an unsupported version."""
+
+
+class OutputError(VslamError):
+    """An output cannot be written: the folder is a file or not writable, the disk is full, it is
+    the input folder, or another run is using it."""

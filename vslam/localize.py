@@ -91,13 +91,20 @@ def localize_path(
                     camera.fx, camera.width, camera.height, map_camera.fx, map_camera.width, map_camera.height)
     localizer = Localizer(slam_map, database, camera, cfg, sensor=sensor, localize_config=loc_cfg)
 
+    from vslam.outputs import LineWriter, open_run_dir
+    from vslam.signals import interrupt_reason
+
     out = Path(output) if output is not None else None
     traj_file = None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        traj_file = open(out / "trajectory.txt", "w")
-        traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam, map frame)\n")
-        traj_file.flush()
+    run_dir = None
+    if out is not None:  # never the map's folder or the sequence; locked; a previous result moved aside
+        run_dir = open_run_dir(out, inputs=(path, map_dir, map_dir / "map"))
+        try:
+            traj_file = LineWriter(out / "trajectory.txt")
+            traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam, map frame)\n")
+        except BaseException:
+            run_dir.release()
+            raise
     stamps: list[float] = []
     poses: list[np.ndarray] = []
     t_start = time.perf_counter()
@@ -113,8 +120,10 @@ def localize_path(
                 if traj_file is not None:
                     row = tum_rows_from_poses(res.T_world_cam[None])[0]
                     traj_file.write(format_tum_line(frame.timestamp, row))
-                    traj_file.flush()
             bar.update(1)
+    except KeyboardInterrupt as exc:
+        error = interrupt_reason(exc)
+        raise
     except Exception as exc:
         error = f"{type(exc).__name__}: {exc}"
         raise
@@ -128,6 +137,7 @@ def localize_path(
         n_loc = len(poses)
         stats: dict[str, Any] = {
             "frames": n_frames,
+            "skipped_frames": ds.skipped,
             "localized": n_loc,
             "localized_ratio": round(n_loc / n_frames, 4) if n_frames else 0.0,
             **{k: s[k] for k in ("tracked", "relocalizations", "relocalization_attempts", "track_failures", "implausible_steps", "lost")},
@@ -149,6 +159,12 @@ def localize_path(
             gt = ds.ground_truth()
             if gt is not None and len(traj) >= 3:
                 stats.update(_evaluate(traj, gt, "sim3" if sensor == "mono" else "se3"))
-        if out is not None:
-            write_stats(out, stats)
+        try:
+            if out is not None:
+                write_stats(out, stats)
+        finally:
+            if run_dir is not None:
+                run_dir.release()
+    if run_dir is not None:
+        run_dir.finish()
     return RunResult(stats=stats, trajectory=traj, output_dir=out)

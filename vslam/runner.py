@@ -3,10 +3,12 @@
 Outputs (the contract of ``vslam run``):
 
 * ``trajectory.txt``: TUM format, ``T_world_cam`` of every tracked frame with the dataset's
-  timestamps. Written and flushed frame by frame, so an interrupted or crashed run keeps what it
-  had; rewritten at the end with the final (optimized) poses.
+  timestamps. Written and flushed frame by frame, whole lines only (a failed write is cut back),
+  so an interrupted or crashed run keeps what it had; rewritten at the end (atomically) with the
+  final (optimized) poses.
 * ``keyframes.txt``: the keyframe trajectory, TUM format.
-* ``stats.json``: counts, timings (``read_ms``: mean wait of the tracker for a decoded frame;
+* ``stats.json``: counts (``skipped_frames``: unreadable frames the reader skipped), ``error`` when
+  the run failed or was stopped, timings (``read_ms``: mean wait of the tracker for a decoded frame;
   ``stage_ms``: the system's per-stage times), loops, and ATE/RPE when ground truth is known.
 * ``config.yaml``: the fully resolved configuration.
 
@@ -29,7 +31,10 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from vslam.config import dump_config
+from vslam.errors import OutputError
 from vslam.trajectory import Trajectory, format_tum_line, tum_rows_from_poses, write_tum
+from vslam.outputs import LineWriter, atomic_path, atomic_write_text, open_run_dir
+from vslam.signals import interrupt_reason
 
 log = logging.getLogger(__name__)
 
@@ -44,9 +49,8 @@ class RunResult:
 
 
 def _atomic_write_tum(path: Path, traj: Trajectory) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    write_tum(tmp, traj)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        write_tum(tmp, traj)
 
 
 def write_stats(out_dir: Path, stats: dict) -> None:
@@ -55,9 +59,7 @@ def write_stats(out_dir: Path, stats: dict) -> None:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(data, indent=2, default=_json_default))
 
 
 def _json_default(obj: Any) -> Any:
@@ -94,6 +96,7 @@ def run_sequence(
     prefetch_depth: int = 4,
     cv_threads: int | None = 1,
     prefetch_mode: str = "thread",
+    inputs: tuple[str | Path, ...] = (),
 ) -> RunResult:
     """Feed ``frames`` to ``system.track`` one by one and collect (and optionally write) the results.
 
@@ -121,22 +124,48 @@ def run_sequence(
             restored afterwards); None leaves it alone. 1 by default: the run already keeps two
             threads busy (tracking and prefetching), and OpenCV's pool competing with them for
             the cores cost more CPU per frame than it saved (``benchmarks/frontend_speed.py``).
+        inputs: the input paths, which ``output_dir`` must not be.
+
+    The output folder is locked for the run and a previous run's outputs in it are moved aside
+    (:func:`vslam.outputs.open_run_dir`); frames the reader skipped (corrupt) are counted in
+    ``skipped_frames``. A failed or stopped run still writes ``stats.json`` with an ``error``.
+
+    Raises:
+        OutputError: the output folder cannot be used or an output cannot be written (disk full).
     """
+    out = Path(output_dir) if output_dir is not None else None
+    run_dir = open_run_dir(out, inputs) if out is not None else None
+    try:
+        if out is not None and config is not None:
+            with atomic_path(out / "config.yaml") as tmp:
+                dump_config(config, tmp)
+        traj_file = LineWriter(out / "trajectory.txt") if out is not None else None
+        if traj_file is not None:
+            traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam)\n")
+    except BaseException:
+        if run_dir is not None:
+            run_dir.release()
+        raise
+    try:
+        result = _run(system, frames, total, out, ground_truth, align, progress, on_frame, extra_stats,
+                      prefetch_depth, cv_threads, prefetch_mode, traj_file)
+    finally:
+        if run_dir is not None:
+            run_dir.release()
+    if run_dir is not None:
+        run_dir.finish()
+    return result
+
+
+def _run(system, frames, total, out, ground_truth, align, progress, on_frame, extra_stats, prefetch_depth,
+         cv_threads, prefetch_mode, traj_file) -> RunResult:
+    """The loop of :func:`run_sequence`, writing into the prepared folder ``out`` (or nothing)."""
     from tqdm import tqdm
 
     from vslam.datasets.prefetch import PROCESS_HEAD_FRAMES, choose_prefetch, prefetch, prefetch_process
 
-    out = Path(output_dir) if output_dir is not None else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        if config is not None:
-            dump_config(config, out / "config.yaml")
-    traj_file = open(out / "trajectory.txt", "w") if out is not None else None
-    if traj_file is not None:
-        traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam)\n")
-        traj_file.flush()
-
-    n_frames = n_tracked = n_lost = 0
+    n_frames = n_tracked = n_lost = n_gaps = 0
+    last_index: int | None = None
     t_start = time.perf_counter()
     error: str | None = None
     bar = tqdm(total=total, desc="tracking", unit="frame", disable=not progress, file=sys.stderr,
@@ -165,6 +194,11 @@ def run_sequence(
             except StopIteration:
                 break
             t_read += time.perf_counter() - t0
+            index = getattr(frame, "index", None)
+            if isinstance(index, (int, np.integer)):
+                if last_index is not None and index > last_index + 1:
+                    n_gaps += int(index - last_index - 1)  # frames the reader skipped (corrupt)
+                last_index = int(index)
             result = system.track(frame)
             n_frames += 1
             if result.T_world_cam is not None:
@@ -172,7 +206,6 @@ def run_sequence(
                 if traj_file is not None:
                     row = tum_rows_from_poses(result.T_world_cam[None])[0]
                     traj_file.write(format_tum_line(frame.timestamp, row))
-                    traj_file.flush()
             elif result.state == "lost":
                 n_lost += 1
             if on_frame is not None:
@@ -183,8 +216,8 @@ def run_sequence(
             if n_frames % 100 == 0:
                 rss.append([n_frames, _rss_mb()])
         system.finish()
-    except KeyboardInterrupt:
-        error = "interrupted"
+    except KeyboardInterrupt as exc:
+        error = interrupt_reason(exc)
         raise
     except Exception as exc:  # keep what we have, then re-raise
         error = f"{type(exc).__name__}: {exc}"
@@ -199,8 +232,12 @@ def run_sequence(
         wall = time.perf_counter() - t_start
         if traj_file is not None:
             traj_file.close()
+        skipped = n_gaps
+        if error is None and total is not None:
+            skipped = max(skipped, int(total) - n_frames)
         stats = {
             "frames": n_frames,
+            "skipped_frames": skipped,
             "tracked": n_tracked,
             "lost": n_lost,
             "wall_s": round(wall, 3),
@@ -219,26 +256,54 @@ def run_sequence(
         if error is not None:
             stats["error"] = error
         trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+        output_error = None
         if error is None:
             trajectory = system.trajectory()
             # frames posed after the fact (seen before a monocular initialization) count as tracked
             stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
-            if out is not None and len(trajectory):
-                _atomic_write_tum(out / "trajectory.txt", trajectory)
             if out is not None:
-                kf = system.keyframe_trajectory()
-                write_tum(out / "keyframes.txt", kf)
-                if hasattr(system, "save_map_outputs"):
-                    try:
-                        stats["outputs"] = system.save_map_outputs(out, metadata=extra_stats)
-                    except Exception as exc:  # the trajectory and stats are already safe; report, don't lose them
-                        log.exception("writing the map outputs failed")
-                        stats["outputs_error"] = f"{type(exc).__name__}: {exc}"
+                output_error = _write_outputs(system, out, trajectory, stats, extra_stats)
             if ground_truth is not None and len(trajectory) >= 3:
                 stats.update(_evaluate(trajectory, ground_truth, align))
         if out is not None:
-            _write_json(out / "stats.json", stats)
+            if output_error is not None:
+                stats["error"] = output_error
+            try:
+                _write_json(out / "stats.json", stats)
+            except OutputError as exc:
+                if error is None and output_error is None:
+                    raise
+                if output_error is not None:
+                    output_error += "; stats.json could not be written either"
+                else:
+                    log.error("%s", exc)  # the run's own error is the one to report
+    if output_error is not None:
+        raise OutputError(output_error)
     return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
+
+
+def _write_outputs(system: Any, out: Path, trajectory: Trajectory, stats: dict, extra_stats: dict | None) -> str | None:
+    """Write the final trajectory, keyframes and map outputs; the first failure as one line (or None)."""
+    step = out / "trajectory.txt"
+    try:
+        if len(trajectory):
+            _atomic_write_tum(step, trajectory)
+        step = out / "keyframes.txt"
+        with atomic_path(step) as tmp:
+            write_tum(tmp, system.keyframe_trajectory())
+        if hasattr(system, "save_map_outputs"):
+            step = out / "map"  # with sparse.ply and topology.*
+            stats["outputs"] = system.save_map_outputs(out, metadata=extra_stats)
+    except OutputError as exc:
+        return str(exc)
+    except OSError as exc:
+        from vslam.outputs import describe_os_error
+
+        return describe_os_error(exc, step)
+    except Exception as exc:  # the trajectory and stats are safe; report it in one line, don't lose them
+        log.debug("writing the map outputs failed", exc_info=True)
+        return f"{out}: writing the map outputs failed ({type(exc).__name__}: {exc})"
+    return None
 
 
 def _adopting(system: Any, items: Iterator[tuple[Any, Any, float]]) -> Iterator[Any]:

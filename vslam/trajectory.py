@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vslam.errors import TrajectoryError
+from vslam.textfile import open_text
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +84,7 @@ def _load_numeric(path: Path, delimiter: str | None, what: str) -> tuple[np.ndar
     rows: list[list[float]] = []
     linenos: list[int] = []
     try:
-        with open(path, encoding="utf-8-sig") as fh:
+        with open_text(path, TrajectoryError) as fh:
             for lineno, line in enumerate(fh, 1):
                 line = line.strip()
                 if not line or line.startswith("#"):
@@ -262,7 +263,7 @@ def detect_format(path: str | Path) -> str:
         raise TrajectoryError(f"{path}: trajectory file not found")
     first = ""
     try:
-        with open(path, encoding="utf-8-sig") as fh:
+        with open_text(path, TrajectoryError) as fh:
             for line in fh:
                 if line.strip() and not line.lstrip().startswith("#"):
                     first = line

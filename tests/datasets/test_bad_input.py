@@ -152,8 +152,10 @@ def test_depth_of_wrong_size(tmp_path, make_tum):
     dpath = sorted((root / "depth").iterdir())[1]
     cv2.imwrite(str(dpath), np.ones((24, 32), np.uint16))
     ds = open_dataset(root)
+    frames = list(ds)  # a frame of the wrong size is skipped and counted, not fatal
+    assert [f.index for f in frames] == [0, 2] and ds.skipped == 1
     with pytest.raises(DatasetError, match=r"depth image is 32x24 but the colour image is 64x48"):
-        list(ds)
+        ds[1]
 
 
 def test_depth_not_16bit(tmp_path, make_tum):

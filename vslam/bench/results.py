@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.textfile import open_text
 
 #: metrics summarized per run: (row key, column title, number format)
 METRICS = (
@@ -249,15 +250,41 @@ def read_results(folder_or_file: str | Path) -> dict:
     path = Path(folder_or_file)
     if path.is_dir():
         path = path / "results.json"
+    if not path.is_file():
+        raise VslamError(f"{path}: no results.json here; run `vslam bench` first")
     try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise VslamError(f"{path}: no results.json here; run `vslam bench` first") from None
+        data = json.loads(open_text(path, VslamError).read())
     except ValueError as exc:
         raise VslamError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list):
         raise VslamError(f"{path}: expected {{\"rows\": [...]}}; is this a vslam bench folder?")
+    for i, row in enumerate(data["rows"]):
+        _check_row(path, i, row)
     return data
+
+
+#: the type each known field of a ``results.json`` row must have (required: name, repeat)
+_ROW_TYPES: dict[str, tuple[type, ...]] = {
+    "name": (str,), "repeat": (int,), "status": (str,), "output": (str,), "error": (str,),
+    "frames": (int,), "tracked": (int,), "ate_rmse": (int, float), "fps": (int, float), "wall_s": (int, float),
+}
+
+
+def _check_row(path: Path, i: int, row: Any) -> None:
+    """Raise :class:`VslamError` naming the row and field of a malformed ``results.json`` row."""
+    if not isinstance(row, dict):
+        raise VslamError(f"{path}: rows[{i}] is {type(row).__name__}, expected an object; regenerate it with `vslam bench`")
+    for key in ("name", "repeat"):
+        if key not in row:
+            raise VslamError(f"{path}: rows[{i}] lacks {key!r}; regenerate it with `vslam bench`")
+    for key, types in _ROW_TYPES.items():
+        v = row.get(key)
+        if v is not None and (not isinstance(v, types) or isinstance(v, bool)):
+            raise VslamError(f"{path}: rows[{i}].{key} is {v!r:.40}, expected {' or '.join(t.__name__ for t in types)}")
+    out = row.get("output")
+    if out is not None and (Path(out).is_absolute() or ".." in Path(out).parts):
+        raise VslamError(f"{path}: rows[{i}].output {out!r} leaves the bench folder; outputs must be relative "
+                         "paths inside it")
 
 
 def _plural(n: int, word: str) -> str:

@@ -30,6 +30,7 @@ from typing import Any
 import yaml
 
 from vslam.errors import ConfigError
+from vslam.textfile import open_text
 
 SENSORS = ("mono", "stereo", "rgbd")
 _TOP_KEYS = {"repeats", "runs", "defaults", "description"}
@@ -232,7 +233,7 @@ def load_spec(path: str | Path, check_paths: bool = False, check_config: bool = 
     if not path.is_file():
         raise ConfigError(f"{path}: benchmark spec not found")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.safe_load(open_text(path, ConfigError).read())
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
     return parse_spec(data, base_dir=path.resolve().parent, source=path, check_paths=check_paths,

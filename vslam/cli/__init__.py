@@ -13,6 +13,7 @@ import sys
 
 from vslam import __version__
 from vslam.errors import VslamError
+from vslam.signals import exit_status, interrupt_reason, terminate_as_interrupt
 
 # Sub-command modules, in the order `vslam --help` lists them. Missing ones are skipped so the
 # command keeps working while stages are still being written.
@@ -45,14 +46,31 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 1
+    terminate_as_interrupt()  # SIGTERM/SIGHUP stop a run like Ctrl-C: stats.json written, children stopped
     try:
         return int(args.func(args) or 0)
     except VslamError as exc:
         print(f"vslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"vslam {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"vslam {args.command}: {interrupt_reason(exc)}", file=sys.stderr)
+        return exit_status(exc)
+    except BrokenPipeError:  # e.g. `vslam ... | head`: nothing more to say
+        return 1
+    except OSError as exc:  # full disk, permissions: the environment, not the input
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"vslam {args.command}: error: {where}{exc.strerror or exc}; free space or fix the permissions "
+              "and rerun", file=sys.stderr)
+        log.debug("details", exc_info=True)
+        return 1
+    except MemoryError:
+        print(f"vslam {args.command}: error: out of memory; use a smaller input or --max-frames", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a bug: one line, the traceback with -vv
+        print(f"vslam {args.command}: internal error: {type(exc).__name__}: {exc} (rerun with -vv for the "
+              "traceback and report it)", file=sys.stderr)
+        log.debug("traceback", exc_info=True)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

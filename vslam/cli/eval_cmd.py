@@ -45,7 +45,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from vslam.eval.evaluate import evaluate_files
+    from vslam.outputs import atomic_write_text, check_output_file
 
+    for out_arg, what in ((args.json, "--json file"), (args.plot, "--plot file")):
+        if out_arg:
+            check_output_file(out_arg, what)  # refuse a folder before the work, not after printing
     overrides = {}
     if args.by_index:
         overrides["by_index"] = True
@@ -62,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.json)
         if not out.parent.is_dir():
             raise TrajectoryError(f"{out}: cannot write the JSON, folder {out.parent} does not exist")
-        out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        atomic_write_text(check_output_file(out, "--json file"), json.dumps(result.to_dict(), indent=2) + "\n")
         print(f"wrote {out}")
     if args.plot:
         from vslam.eval.plot import plot_evaluation

@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \
+           f"{s.get('skipped_frames', 0)} skipped (unreadable), " \
            f"{s.get('keyframes', 0)} keyframes, {s.get('map_points', 0)} map points, {s['fps']:.1f} frames/s"
     print(line)
     if "ate_rmse" in s:

@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
+from vslam.textfile import open_text
 from vslam.trajectory import Trajectory
 from vslam.geometry.camera import PinholeCamera
 
@@ -72,6 +73,43 @@ def _read_bytes(path: Path, what: str) -> np.ndarray:
     return np.frombuffer(data, dtype=np.uint8)
 
 
+#: images above this many pixels are refused from their header, before decoding (a 30000x30000 PNG
+#: of a few hundred KB would otherwise take gigabytes)
+MAX_IMAGE_PIXELS = 1 << 26  # 67 megapixels, e.g. 8192 x 8192
+
+
+def image_header_size(buf: bytes | np.ndarray) -> tuple[int, int] | None:
+    """``(width, height)`` from a PNG (IHDR) or JPEG (SOFn) header, without decoding; None for
+    other formats or a header that cannot be parsed."""
+    data = bytes(buf[:1 << 16]) if not isinstance(buf, bytes) else buf[:1 << 16]
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if data[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 <= len(data):
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            length = int.from_bytes(data[i + 2:i + 4], "big")
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                return int.from_bytes(data[i + 7:i + 9], "big"), int.from_bytes(data[i + 5:i + 7], "big")
+            i += 2 + length
+    return None
+
+
+def _check_header(path: Path, buf: np.ndarray, what: str) -> None:
+    """Refuse an image whose header announces more than :data:`MAX_IMAGE_PIXELS` (or 0) pixels."""
+    size = image_header_size(buf)
+    if size is not None:
+        w, h = size
+        if w <= 0 or h <= 0 or w * h > MAX_IMAGE_PIXELS:
+            raise CorruptFrameError(f"{path}: {what} header says {w}x{h} pixels, not a plausible camera "
+                                    f"image (at most {MAX_IMAGE_PIXELS} pixels); replace the file")
+
+
 def _check_not_truncated(path: Path, buf: np.ndarray, what: str) -> None:
     """JPEG decoders fill a truncated file with grey silently; require the EOI marker (FF D9)."""
     if len(buf) >= 2 and buf[0] == 0xFF and buf[1] == 0xD8:
@@ -90,6 +128,7 @@ def load_image(path: str | Path, grayscale: bool = False) -> np.ndarray:
 
     path = Path(path)
     buf = _read_bytes(path, "image")
+    _check_header(path, buf, "image")
     _check_not_truncated(path, buf, "image")
     flag = cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_UNCHANGED
     img = cv2.imdecode(buf, flag)
@@ -122,15 +161,17 @@ def load_depth(
 
     path = Path(path)
     buf = _read_bytes(path, "depth")
+    _check_header(path, buf, "depth")
     raw = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise CorruptFrameError(f"{path}: depth image cannot be decoded (truncated or not a PNG); re-extract it")
-    if raw.ndim != 2 or raw.dtype not in (np.uint16, np.uint8):
+    if raw.ndim != 2 or raw.dtype != np.uint16:
         raise DatasetError(
-            f"{path}: depth must be a single-channel 16-bit PNG, got {raw.dtype} with shape {raw.shape}"
+            f"{path}: depth must be a single-channel 16-bit PNG ({scale:g} units per metre), got "
+            f"{raw.dtype} with shape {raw.shape}; 8-bit or colour depth cannot hold metric depth"
         )
     if shape is not None and raw.shape != tuple(shape):
-        raise DatasetError(
+        raise CorruptFrameError(
             f"{path}: depth image is {raw.shape[1]}x{raw.shape[0]} but the colour image is "
             f"{shape[1]}x{shape[0]}; depth must be registered to and the same size as the colour image"
         )
@@ -176,7 +217,7 @@ def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> 
     path = require_file(path, what)
     ts: list[float] = []
     rows: list[list[str]] = []
-    with open(path, encoding="utf-8-sig") as fh:
+    with open_text(path, DatasetError) as fh:
         for lineno, line in enumerate(fh, 1):
             line = line.strip()
             if not line or line.startswith("#"):
@@ -293,10 +334,7 @@ def interpolate_poses(
 def _load_yaml(path: Path) -> dict:
     import yaml
 
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read camera file ({exc.strerror})") from None
+    text = open_text(path, CalibrationError).read()
     # OpenCV FileStorage YAML: drop the '%YAML:1.0' directive and '!!opencv-matrix' tags
     text = re.sub(r"^%YAML[: ]?1\.0\s*$", "", text, flags=re.M)
     text = text.replace("!!opencv-matrix", "")
@@ -493,7 +531,7 @@ class Dataset:
         """Raise when an image does not have the calibrated size."""
         h, w = image.shape[:2]
         if (w, h) != (self.camera.width, self.camera.height):
-            raise DatasetError(
+            raise CorruptFrameError(
                 f"{path}: image is {w}x{h} but the calibration says {self.camera.width}x{self.camera.height}; "
                 f"fix the calibration or the image"
             )

@@ -36,6 +36,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
+from vslam.textfile import open_text
 from vslam.trajectory import Trajectory, read_euroc, read_tum
 from vslam.geometry.camera import PinholeCamera
 
@@ -76,7 +77,7 @@ def read_euroc_sensor(path: str | Path) -> tuple[PinholeCamera, np.ndarray, floa
 def _read_cam_csv(csv: Path, what: str) -> tuple[np.ndarray, list[str]]:
     csv = require_file(csv, f"EuRoC {what} list")
     ns, names = [], []
-    with open(csv, encoding="utf-8-sig") as fh:
+    with open_text(csv, DatasetError) as fh:
         for lineno, line in enumerate(fh, 1):
             line = line.strip()
             if not line or line.startswith("#"):

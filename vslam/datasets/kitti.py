@@ -29,6 +29,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
+from vslam.textfile import open_text
 from vslam.trajectory import read_kitti
 from vslam.geometry.camera import PinholeCamera
 
@@ -42,7 +43,7 @@ def read_kitti_calib(path: str | Path) -> dict[str, np.ndarray]:
         raise CalibrationError(f"{path}: KITTI calib.txt not found; it must hold at least 'P0:' (and 'P1:' for stereo)")
     out: dict[str, np.ndarray] = {}
     k = 0
-    with open(path, encoding="utf-8-sig") as fh:
+    with open_text(path, CalibrationError) as fh:
         for lineno, line in enumerate(fh, 1):
             line = line.strip()
             if not line or line.startswith("#"):

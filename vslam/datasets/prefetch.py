@@ -265,7 +265,11 @@ def _slot_bytes(source: FrameRange) -> int | None:
 def _child_main(source: FrameRange, work: Callable[[Any], Any] | None, q, stop, waiting,
                 slots: _Slots | None = None) -> None:
     """Body of the prefetch process: read, ``work`` on and queue every frame, in order; ``work``
-    is skipped (result None) while ``waiting`` (a shared flag, or None) says the consumer waits."""
+    is skipped (result None) while ``waiting`` (a shared flag, or None) says the consumer waits.
+    The process exits by itself once its parent is gone (:func:`vslam.signals.watch_parent`)."""
+    from vslam.signals import watch_parent
+
+    watch_parent()
     try:
         import cv2
 

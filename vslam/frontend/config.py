@@ -185,6 +185,9 @@ class FrontendConfig:
             raise ConfigError(f"frontend.tracking.min_inliers must be >= 6, got {self.tracking.min_inliers}")
         if self.dense.refine_downsample < 1:
             raise ConfigError(f"frontend.dense.refine_downsample must be >= 1 (1 = full resolution), got {self.dense.refine_downsample}")
+        if not 0 <= self.depth.min_depth < self.depth.max_depth:
+            raise ConfigError(f"frontend.depth.min_depth ({self.depth.min_depth}) must be >= 0 and below "
+                              f"frontend.depth.max_depth ({self.depth.max_depth}), metres")
 
     def check_sensor(self, sensor: str) -> None:
         """Raise :class:`ConfigError` for a motion method the sensor cannot support."""

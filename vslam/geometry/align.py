@@ -120,8 +120,7 @@ def align_points(
             best_score = float(score[i])
             best = (R[i], t[i], s[i], np.sqrt(res2[i]))
             if not lmeds:
-                w = best_score / n
-                needed = 1 if w >= 1 else int(np.ceil(np.log(1 - confidence) / np.log(max(1 - w**3, 1e-300))))
+                needed = _ransac_iterations(best_score / n, confidence, max_iters)
     if best is None:
         raise GeometryError("align_points: every 3-point sample is degenerate (points collinear or coincident)")
     res = best[3]
@@ -181,3 +180,15 @@ def align_ransac(
         e2 = ((X_src @ T[:3, :3].T + T[:3, 3] - X_dst) ** 2).sum(axis=1)
         mask = e2 < thr2
     return T, mask
+
+
+def _ransac_iterations(w: float, confidence: float, max_iters: int) -> int:
+    """Samples RANSAC needs for inlier ratio ``w``: ``log(1 - confidence) / log(1 - w^3)``
+    (Fischler & Bolles 1981), capped at ``max_iters``; ``w <= 0`` (no inlier yet) needs them all."""
+    if w >= 1:
+        return 1
+    denom = np.log1p(-(w ** 3)) if w > 0 else 0.0
+    if not denom < 0:
+        return max_iters
+    k = np.log(max(1.0 - confidence, 1e-300)) / denom
+    return int(min(max_iters, np.ceil(k))) if np.isfinite(k) else max_iters

@@ -468,6 +468,7 @@ def load_map(
     slam_map.keyframes = {kf.id: kf for kf in keyframes}
     slam_map.points = points
     slam_map.covisibility = _unpack_covisibility(root, manifest, graph_arrays)
+    _check_references(root, slam_map)
     _unpack_map_attributes(root, manifest, slam_map)
 
     database = None
@@ -550,6 +551,7 @@ def _read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
         raise MapFormatError(f"{root / MANIFEST_FILE}: no array list for {name}")
     out = {}
     try:
+        _check_npz_sizes(path)
         with np.load(path, allow_pickle=False) as data:
             present = set(data.files)
             for key, s in spec.items():
@@ -568,6 +570,32 @@ def _read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error) as exc:
         raise MapFormatError(f"{path} is unreadable (truncated or corrupted): {exc}") from exc
     return out
+
+
+def _check_npz_sizes(path: Path) -> None:
+    """Before anything is allocated: every member is stored uncompressed (as :func:`save_map` writes
+    it, so its size is bounded by the file's, which ``map.json`` fixes) and its ``.npy`` header
+    claims no more bytes than the member holds (a crafted shape would otherwise allocate first)."""
+    from numpy.lib import format as npy
+
+    size = path.stat().st_size
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            if info.compress_type != zipfile.ZIP_STORED or info.file_size > size:
+                raise MapFormatError(f"{path}: member {info.filename!r} is compressed or larger than the file; "
+                                     "maps are written uncompressed by vslam")
+            with zf.open(info) as fh:
+                version = npy.read_magic(fh)
+                if version not in ((1, 0), (2, 0), (3, 0)):
+                    raise MapFormatError(f"{path}: member {info.filename!r} has .npy version {version}")
+                reader = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+                shape, _, dtype = reader(fh)
+                if dtype.hasobject:
+                    raise MapFormatError(f"{path}: member {info.filename!r} holds Python objects; not a vslam map")
+                claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if claimed > info.file_size:
+                    raise MapFormatError(f"{path}: array {info.filename!r} claims shape {shape} ({claimed} bytes) "
+                                         f"but holds {info.file_size} bytes; the map is corrupted")
 
 
 def _expect(root: Path, file: str, arrays: dict, key: str, shape: tuple) -> np.ndarray:
@@ -660,12 +688,18 @@ def _unpack_dict(root: Path, field: str, text: str, arrays: dict) -> dict | None
     return value
 
 
+_MAX_SPARE_CAPACITY = 1 << 20  # point_store rows allocated beyond 4x the saved ones at most
+
+
 def _unpack_points(root: Path, manifest: dict, arrays: dict) -> MapPointStore:
     layout = manifest["point_store"]
     n, cap = layout.get("rows"), layout.get("capacity")
     columns = layout.get("columns")
     if not isinstance(n, int) or not isinstance(cap, int) or n < 0 or cap < n or not isinstance(columns, dict):
         raise MapFormatError(f"{root / MANIFEST_FILE}: malformed point_store {layout}")
+    if cap > max(4 * n, _MAX_SPARE_CAPACITY):  # checked before allocating: a crafted capacity is no MemoryError
+        raise MapFormatError(f"{root / MANIFEST_FILE}: point_store capacity {cap} is implausible for {n} rows "
+                             f"(at most {max(4 * n, _MAX_SPARE_CAPACITY)}); the manifest is corrupted")
     store = MapPointStore(capacity=cap)
     ours = vars(store)
     for name, saved in columns.items():
@@ -709,8 +743,24 @@ def _unpack_covisibility(root: Path, manifest: dict, arrays: dict) -> dict[int, 
         links = graph.get(i)
         if links is None:
             raise MapFormatError(f"{root / COVISIBILITY_FILE}: edge ({i}, {j}) starts at keyframe {i}, not a graph node")
+        if j not in graph:
+            raise MapFormatError(f"{root / COVISIBILITY_FILE}: edge ({i}, {j}) ends at keyframe {j}, not a graph node")
         links[j] = w
     return graph
+
+
+def _check_references(root: Path, slam_map: Map) -> None:
+    """Every covisibility node is a keyframe and every keyframe pose is finite and rigid."""
+    missing = [k for k in slam_map.covisibility if k not in slam_map.keyframes]
+    if missing:
+        raise MapFormatError(f"{root / COVISIBILITY_FILE}: graph node {missing[0]} is not a keyframe of "
+                             f"{KEYFRAMES_FILE}; the map is corrupted")
+    for kf in slam_map.keyframes.values():
+        T = np.asarray(kf.T_world_cam, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]) \
+                or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-3):
+            raise MapFormatError(f"{root / KEYFRAMES_FILE}: keyframe {kf.id} pose is not a finite rigid "
+                                 "transform; the map is corrupted")
 
 
 def _unpack_map_attributes(root: Path, manifest: dict, slam_map: Map) -> None:
@@ -726,6 +776,13 @@ def _camera_from_json(root: Path, data: dict | None) -> PinholeCamera | None:
         return None
     try:
         kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-        return PinholeCamera(**kwargs)
-    except (TypeError, ValueError) as exc:
-        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {data} is malformed: {exc}") from exc
+        camera = PinholeCamera(**kwargs)
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {data} is malformed: {exc}") from None
+    numbers = {k: getattr(camera, k, None) for k in ("fx", "fy", "cx", "cy", "width", "height")}
+    ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in numbers.values())
+    if not ok or numbers["fx"] <= 0 or numbers["fy"] <= 0 or numbers["width"] < 1 or numbers["height"] < 1 \
+            or not all(isinstance(numbers[k], int) for k in ("width", "height")):
+        raise MapFormatError(f"{root / MANIFEST_FILE}: camera {numbers} is invalid (positive finite focal "
+                             "lengths and whole-number image size needed); the map is corrupted")
+    return camera

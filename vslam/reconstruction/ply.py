@@ -190,6 +190,8 @@ def _parse_header(fh, path: Path) -> tuple[str, list[_Element]]:
                     raise MapFormatError(f"{path}: unknown PLY format {fmt!r}")
             elif words[0] == "element":
                 elements.append(_Element(words[1], int(words[2]), []))
+                if elements[-1].count < 0:
+                    raise ValueError("negative element count")
             elif words[0] == "property":
                 if not elements:
                     raise MapFormatError(f"{path}: PLY property before any element")

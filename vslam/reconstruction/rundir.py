@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.textfile import open_text
 from vslam.reconstruction.dense import TSDFConfig, TSDFFusion
 from vslam.reconstruction.stereo_depth import StereoDepthConfig, default_max_depth
 
@@ -30,7 +31,7 @@ def _read_stats(run_dir: Path) -> dict:
     if not path.is_file():
         raise VslamError(f"{run_dir}: no stats.json; pass a folder written by `vslam run`")
     try:
-        stats = json.loads(path.read_text())
+        stats = json.loads(open_text(path, VslamError).read())
     except json.JSONDecodeError as exc:
         raise VslamError(f"{path}: not valid JSON ({exc})") from None
     for key in ("path", "sensor"):

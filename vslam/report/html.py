@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.textfile import open_text
+from vslam.outputs import atomic_write_text, check_output_file, inside
 
 log = logging.getLogger(__name__)
 
@@ -137,17 +139,43 @@ def _open_dataset_of(stats: dict):
     return open_dataset(path, kind=kind, sensor=stats.get("sensor"))
 
 
+#: the type each known ``stats.json`` field must have (a crafted file fails with one line)
+_STATS_TYPES: dict[str, tuple[type, ...]] = {
+    "frames": (int,), "tracked": (int,), "lost": (int,), "skipped_frames": (int,), "start_frame": (int,),
+    "loops": (list,), "stage_ms": (dict,), "path": (str,), "sensor": (str,), "dataset": (str,),
+    "error": (str,), "fps": (int, float), "wall_s": (int, float), "ate_rmse": (int, float),
+}
+
+
+def _check_stats(path: Path, stats: Any) -> None:
+    """Raise :class:`VslamError` naming the field when ``stats.json`` is not what ``vslam run`` writes."""
+    if not isinstance(stats, dict):
+        raise VslamError(f"{path}: expected a JSON object as written by `vslam run`")
+    for key, types in _STATS_TYPES.items():
+        v = stats.get(key)
+        if v is not None and (not isinstance(v, types) or isinstance(v, bool)):
+            raise VslamError(f"{path}: field {key!r} is {type(v).__name__} {v!r:.40}, expected "
+                             f"{' or '.join(t.__name__ for t in types)}; fix or regenerate the file")
+    for i, loop in enumerate(stats.get("loops") or []):
+        if not isinstance(loop, (list, dict)):
+            raise VslamError(f"{path}: loops[{i}] is {loop!r:.40}, expected a list [query frame, match frame, ...]")
+    for k, v in (stats.get("stage_ms") or {}).items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise VslamError(f"{path}: stage_ms[{k!r}] is {v!r:.40}, expected a number of milliseconds")
+
+
 def load_run(folder: str | Path) -> RunData:
     """Load a run folder's stats, trajectory, ground truth (aligned and evaluated) and sparse map."""
     from vslam.eval import evaluate_trajectories, read_trajectory
 
     folder = Path(folder)
+    if not (folder / "stats.json").is_file():
+        raise VslamError(f"{folder}: no stats.json; pass a `vslam run` output folder or a `vslam bench` folder")
     try:
-        stats = json.loads((folder / "stats.json").read_text())
-    except FileNotFoundError:
-        raise VslamError(f"{folder}: no stats.json; pass a `vslam run` output folder or a `vslam bench` folder") from None
+        stats = json.loads(open_text(folder / "stats.json", VslamError).read())
     except ValueError as exc:
         raise VslamError(f"{folder / 'stats.json'}: not valid JSON ({exc})") from None
+    _check_stats(folder / "stats.json", stats)
     run = RunData(folder=folder, stats=stats)
     traj_path = folder / "trajectory.txt"
     if traj_path.is_file():
@@ -479,11 +507,14 @@ def bench_report_html(folder: str | Path, output: str | Path | None = None, run_
         trs = []
         for r in group:
             link = "-"
-            run_dir = folder / r.get("output", f"runs/{name}/{r['repeat']}")
+            try:
+                run_dir = inside(folder, r.get("output", f"runs/{name}/{r['repeat']}"))
+            except VslamError as exc:
+                raise VslamError(f"{folder / 'results.json'}: row {name!r} repeat {r['repeat']}: {exc}") from None
             if run_reports and (run_dir / "stats.json").is_file():
                 try:
                     page = run_dir / "report.html"
-                    page.write_text(run_report_html(run_dir, f"{name} repeat {r['repeat']}"))
+                    atomic_write_text(page, run_report_html(run_dir, f"{name} repeat {r['repeat']}"))
                     link = f'<a href="{_esc(os.path.relpath(page.resolve(), out_dir))}">report</a>'
                 except Exception as exc:  # noqa: BLE001 - one broken run must not break the page
                     link = f'<span class="fail">report failed: {_esc(exc)}</span>'
@@ -501,13 +532,12 @@ def write_report(path: str | Path, output: str | Path, run_reports: bool = True)
     output = Path(output)
     if not path.is_dir():
         raise VslamError(f"{path}: not a folder; pass a `vslam run` or `vslam bench` output folder")
+    check_output_file(output, "report")
     if (path / "results.json").is_file():
         page = bench_report_html(path, output, run_reports=run_reports)
     elif (path / "stats.json").is_file():
         page = run_report_html(path)
     else:
         raise VslamError(f"{path}: neither results.json (a bench folder) nor stats.json (a run folder) found")
-    if output.parent and not output.parent.exists():
-        output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(page, encoding="utf-8")
+    atomic_write_text(output, page)
     return output

@@ -52,7 +52,13 @@ def read_ply_points(path: str | Path, max_points: int | None = None) -> tuple[np
             element = parts[1]
             first_element = first_element or element
             if element == "vertex":
-                n = int(parts[2])
+                try:
+                    n = int(parts[2])
+                except (IndexError, ValueError):
+                    n = -1
+                if n < 0:
+                    raise MapFormatError(f"{path}: malformed PLY header line {line.strip()!r}: the vertex "
+                                         "count must be a whole number >= 0")
         elif parts[0] == "property" and element == "vertex":
             if parts[1] == "list":
                 raise MapFormatError(f"{path}: list properties on vertices are not supported")
