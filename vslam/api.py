@@ -46,13 +46,38 @@ def resolve_config(config: str | Path | object | None, overrides) -> object:
     Config object, with ``overrides`` applied on top when there are any."""
     from vslam.config import Config
 
+    if isinstance(config, (str, Path)):
+        _refuse_calibration_as_config(Path(config))
     if config is None or isinstance(config, (str, Path)):
         return load_config(Config, config, overrides)
     return load_config(Config, None, overrides) if overrides else config
 
 
+def _refuse_calibration_as_config(path: Path) -> None:
+    """A camera calibration (ORB-SLAM settings, OpenCV, Kalibr ...) passed as ``--config`` is a
+    common mistake: say so and point to ``--camera``."""
+    from vslam.datasets.calibration import FORMAT_NAMES, detect_camera_format
+    from vslam.errors import ConfigError
+
+    if not path.is_file() or path.suffix.lower() not in (".yaml", ".yml"):
+        return
+    try:
+        from vslam.datasets.base import _load_yaml
+
+        data = _load_yaml(path)
+    except DatasetError:
+        return
+    fmt = detect_camera_format(data)
+    if fmt is not None:
+        raise ConfigError(
+            f"{path}: this is a camera calibration ({FORMAT_NAMES[fmt]}), not a vslam settings file; "
+            f"pass it as --camera {path}"
+        )
+
+
 def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, start_frame: int,
-                  max_frames: int | None, preferred_sensor: str | None = None):
+                  max_frames: int | None, preferred_sensor: str | None = None, camera=None,
+                  options: dict | None = None):
     """Open the sequence at ``path`` for ``sensor`` (default: ``preferred_sensor`` when the data has
     it, else :func:`choose_sensor`'s) and check the frame range.
 
@@ -61,16 +86,36 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
     """
     from vslam.datasets import open_dataset
 
-    probe = open_dataset(path, kind=dataset)
+    options = options or {}
+    probe = open_dataset(path, kind=dataset, camera=camera, **options)
     if sensor is None and preferred_sensor in probe.sensors:
         sensor = preferred_sensor
     sensor = choose_sensor(probe.sensors, sensor)
-    ds = open_dataset(path, kind=dataset, sensor=sensor)
+    ds = probe if sensor == probe.sensor else open_dataset(path, kind=dataset, sensor=sensor, camera=camera, **options)
     n = len(ds)
     if start_frame < 0 or start_frame >= n:
         raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
     stop = n if max_frames is None else min(n, start_frame + max(0, max_frames))
     return ds, sensor, stop
+
+
+TRAJECTORY_FORMATS = ("tum", "kitti", "euroc")
+
+
+def export_trajectory(out_dir: Path, trajectory, fmt: str) -> Path:
+    """Write ``trajectory`` beside the run folder's TUM ``trajectory.txt`` in another format:
+    ``trajectory_kitti.txt`` (+ ``trajectory_kitti_times.txt``) or ``trajectory_euroc.csv``."""
+    from vslam.eval.trajectory import write_trajectory
+
+    if fmt not in TRAJECTORY_FORMATS:
+        raise DatasetError(f"unknown trajectory format {fmt!r}; use one of {', '.join(TRAJECTORY_FORMATS)}")
+    if fmt == "kitti":
+        path = out_dir / "trajectory_kitti.txt"
+        write_trajectory(path, trajectory, "kitti", out_dir / "trajectory_kitti_times.txt")
+    else:
+        path = out_dir / "trajectory_euroc.csv"
+        write_trajectory(path, trajectory, "euroc")
+    return path
 
 
 def run_path(
@@ -86,6 +131,8 @@ def run_path(
     viz: str | None = None,
     dense: bool = False,
     prefetch: str = "auto",
+    camera: str | Path | None = None,
+    trajectory_format: str = "tum",
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
@@ -96,6 +143,9 @@ def run_path(
     child process on long runs when that is safe (a script calling this should guard its work
     with ``if __name__ == "__main__":``, as any program using multiprocessing must). The poses do
     not depend on it.
+    ``camera`` is a calibration file in any format :mod:`vslam.datasets.calibration` reads (or a
+    TUM preset name ``fr1``/``fr2``/``fr3``), overriding the sequence's own calibration.
+    ``trajectory_format`` (``tum``, ``kitti``, ``euroc``) is the format of ``trajectory.txt``.
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.datasets.prefetch import FrameRange
@@ -103,7 +153,9 @@ def run_path(
     from vslam.system import System
 
     cfg = resolve_config(config, overrides)
-    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames)
+    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera)
+    if getattr(ds, "calibration_source", None):
+        log.info("camera: %s", ds.calibration_source)
     system = System(cfg, ds.camera, sensor=sensor)
     gt = ds.ground_truth()
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
@@ -120,11 +172,14 @@ def run_path(
             system, FrameRange(ds, start_frame, stop), total=stop - start_frame, prefetch_mode=prefetch, output_dir=output, config=cfg,
             ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
-                         "start_frame": start_frame},
+                         "start_frame": start_frame,
+                         **({"camera": ds.calibration_source} if getattr(ds, "calibration_source", None) else {})},
         )
     finally:
         if viewer is not None:
             viewer.close()
+    if trajectory_format != "tum" and output is not None and len(result.trajectory):
+        result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
     if dense and output is not None:
         from vslam.reconstruction import reconstruct_run
         from vslam.runner import write_stats

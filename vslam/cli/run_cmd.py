@@ -17,7 +17,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", required=True, help="output folder")
     p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: rgbd, else stereo, else mono")
     p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder, video")
-    p.add_argument("--config", help="YAML file with settings")
+    p.add_argument("--camera", metavar="FILE",
+                   help="camera calibration overriding the sequence's: vslam camera.yaml, OpenCV YAML/XML, "
+                        "ORB-SLAM2/3 settings, Kalibr camchain, ROS camera_info, KITTI calib.txt (detected), "
+                        "or a TUM preset fr1|fr2|fr3")
+    p.add_argument("--config", help="YAML file with vslam settings (not the camera: use --camera)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting, e.g. --set frontend.motion=3d3d (repeatable)")
     p.add_argument("--max-frames", type=int, help="stop after N frames")
@@ -26,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="stream to a rerun viewer, or record to FILE.rrd (needs the viz extra)")
     p.add_argument("--dense", action="store_true",
                    help="also fuse the keyframes into a TSDF mesh: mesh.ply, dense.ply (rgbd/stereo; dense extra)")
+    p.add_argument("--trajectory-format", choices=["tum", "kitti", "euroc"], default="tum",
+                   help="also write the trajectory in this format (trajectory_kitti.txt, trajectory_euroc.csv); "
+                        "trajectory.txt stays TUM")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -37,14 +44,20 @@ def run(args: argparse.Namespace) -> int:
     result = run_path(
         args.path, args.output, sensor=args.sensor, dataset=args.dataset, config=args.config,
         overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
-        progress=not args.no_progress, viz=args.viz, dense=args.dense,
+        progress=not args.no_progress, viz=args.viz, dense=args.dense, camera=args.camera,
+        trajectory_format=args.trajectory_format,
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \
            f"{s.get('keyframes', 0)} keyframes, {s.get('map_points', 0)} map points, {s['fps']:.1f} frames/s"
     print(line)
+    if "camera" in s:
+        print(f"camera: {s['camera']}")
     if "ate_rmse" in s:
-        print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses")
+        scale = " (Sim(3)-aligned: monocular scale is arbitrary)" if s.get("sensor") == "mono" else ""
+        print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses{scale}")
+    if "trajectory_export" in s:
+        print(f"trajectory ({args.trajectory_format}): {s['trajectory_export']}")
     if "dense" in s:
         d = s["dense"]
         print(f"dense map: {d.get('mesh_vertices', d.get('vertices', '?'))} mesh vertices -> {d.get('mesh', '')}")
