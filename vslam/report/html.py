@@ -399,6 +399,9 @@ def run_body(run: RunData, title: str | None = None) -> str:
         rows.append(f"<tr><td>ATE RMSE recomputed here [m]</td><td>{ev.ate.rmse:.4f}</td></tr>")
         rows.append(f"<tr><td>ground truth</td><td>{_esc(run.gt_source)}</td></tr>")
     parts.append('<h2>Summary</h2><table id="summary">' + "".join(rows) + "</table>")
+    if s.get("sensor") == "mono":
+        parts.append('<p class="note">monocular run: the map and trajectory scale is arbitrary; the ATE is '
+                     'computed after a Sim(3) alignment (rotation, translation and scale) to the ground truth.</p>')
     if s.get("error"):
         parts.append(f'<p class="fail">the run failed: {_esc(s["error"])}</p>')
     parts.append("<h2>Trajectory</h2>")
