@@ -133,6 +133,7 @@ def run_path(
     prefetch: str = "auto",
     camera: str | Path | None = None,
     trajectory_format: str = "tum",
+    topics: str | None = None,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
@@ -145,7 +146,8 @@ def run_path(
     not depend on it.
     ``camera`` is a calibration file in any format :mod:`vslam.datasets.calibration` reads (or a
     TUM preset name ``fr1``/``fr2``/``fr3``), overriding the sequence's own calibration.
-    ``trajectory_format`` (``tum``, ``kitti``, ``euroc``) is the format of ``trajectory.txt``.
+    ``trajectory_format`` (``kitti``, ``euroc``) also writes the trajectory in that format.
+    ``topics`` (``COLOR[,DEPTH|,RIGHT]``) picks the image topics of a ROS bag.
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.datasets.prefetch import FrameRange
@@ -153,7 +155,8 @@ def run_path(
     from vslam.system import System
 
     cfg = resolve_config(config, overrides)
-    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera)
+    options = {"topics": topics} if topics else {}
+    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
     if getattr(ds, "calibration_source", None):
         log.info("camera: %s", ds.calibration_source)
     system = System(cfg, ds.camera, sensor=sensor)

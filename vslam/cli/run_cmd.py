@@ -11,16 +11,18 @@ log = logging.getLogger(__name__)
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "run", help="run SLAM on a sequence",
-        description="Run SLAM on a sequence (TUM, KITTI, EuRoC, 7-Scenes, image folder or video).",
+        description="Run SLAM on a sequence (TUM, KITTI, EuRoC, 7-Scenes, image folder, video or ROS 1/2 bag).",
     )
-    p.add_argument("path", help="sequence folder or video file")
+    p.add_argument("path", help="sequence folder, video file or ROS bag (.bag file or ROS 2 bag folder)")
     p.add_argument("--output", "-o", required=True, help="output folder")
     p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: rgbd, else stereo, else mono")
-    p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder, video")
+    p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder, video, rosbag")
     p.add_argument("--camera", metavar="FILE",
                    help="camera calibration overriding the sequence's: vslam camera.yaml, OpenCV YAML/XML, "
                         "ORB-SLAM2/3 settings, Kalibr camchain, ROS camera_info, KITTI calib.txt (detected), "
                         "or a TUM preset fr1|fr2|fr3")
+    p.add_argument("--topics", metavar="COLOR[,DEPTH|,RIGHT]",
+                   help="image topics of a ROS bag (default: detected when unambiguous)")
     p.add_argument("--config", help="YAML file with vslam settings (not the camera: use --camera)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting, e.g. --set frontend.motion=3d3d (repeatable)")
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         args.path, args.output, sensor=args.sensor, dataset=args.dataset, config=args.config,
         overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
         progress=not args.no_progress, viz=args.viz, dense=args.dense, camera=args.camera,
-        trajectory_format=args.trajectory_format,
+        trajectory_format=args.trajectory_format, topics=args.topics,
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \

@@ -2,6 +2,7 @@
 
 Detection (first match wins):
 
+* a ROS 1 ``.bag`` file or a ROS 2 bag folder (``metadata.yaml``) -> ``rosbag``
 * a file with a video extension -> ``video``
 * ``rgb.txt`` or ``associate.txt`` in the folder -> ``tum``
 * ``mav0/`` in the folder, or the folder is ``mav0`` (``cam0/data.csv``) -> ``euroc``
@@ -17,9 +18,9 @@ from pathlib import Path
 from vslam.datasets.base import IMAGE_EXTENSIONS, Dataset
 from vslam.errors import DatasetError
 
-KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video")
+KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video", "rosbag")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
-_ALIASES = {"sevenscenes": "7scenes", "7-scenes": "7scenes", "images": "folder", "tum_rgbd": "tum", "asl": "euroc"}
+_ALIASES = {"bag": "rosbag", "ros": "rosbag", "sevenscenes": "7scenes", "7-scenes": "7scenes", "images": "folder", "tum_rgbd": "tum", "asl": "euroc"}
 
 
 def detect_kind(path: str | Path) -> str:
@@ -27,6 +28,8 @@ def detect_kind(path: str | Path) -> str:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such file or folder; check the dataset path")
+    if (path.is_file() and path.suffix == ".bag") or (path.is_dir() and (path / "metadata.yaml").is_file()):
+        return "rosbag"
     if path.is_file():
         if path.suffix.lower() in VIDEO_EXTENSIONS:
             return "video"
@@ -114,6 +117,10 @@ def open_dataset(
         from vslam.datasets.sevenscenes import SevenScenesDataset
 
         return SevenScenesDataset(path, sensor=sensor, camera=camera, **options)
+    if kind == "rosbag":
+        from vslam.datasets.rosbag import RosbagDataset
+
+        return RosbagDataset(path, sensor=sensor, camera=camera, **options)
     if kind == "folder":
         from vslam.datasets.folder import FolderDataset
 
