@@ -16,7 +16,7 @@ from vslam.errors import VslamError
 
 # Sub-command modules, in the order `vslam --help` lists them. Missing ones are skipped so the
 # command keeps working while stages are still being written.
-COMMANDS = ["demo", "run", "eval", "localize", "reconstruct", "vocab", "bench", "report"]
+COMMANDS = ["demo", "run", "eval", "localize", "calibrate", "reconstruct", "vocab", "bench", "report"]
 
 log = logging.getLogger("vslam")
 
