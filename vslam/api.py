@@ -150,10 +150,18 @@ def run_path(
     ``topics`` (``COLOR[,DEPTH|,RIGHT]``) picks the image topics of a ROS bag.
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
+    from vslam.datasets.live import is_live_source
     from vslam.datasets.prefetch import FrameRange
     from vslam.runner import run_sequence
     from vslam.system import System
 
+    if dataset == "live" or (dataset is None and is_live_source(str(path))):
+        if dense:
+            raise DatasetError("--dense needs depth; live input is mono")
+        if start_frame:
+            raise DatasetError("--start-frame does not apply to live input")
+        return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
+                        progress=progress, viz=viz, trajectory_format=trajectory_format)
     cfg = resolve_config(config, overrides)
     options = {"topics": topics} if topics else {}
     ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
@@ -189,4 +197,79 @@ def run_path(
 
         result.stats["dense"] = reconstruct_run(output)
         write_stats(Path(output), result.stats)
+    return result
+
+
+def run_live(
+    source: str,
+    output: str | Path | None,
+    camera: str | Path | None = None,
+    config: str | Path | object | None = None,
+    overrides: list[str] | tuple[str, ...] = (),
+    max_frames: int | None = None,
+    progress: bool = False,
+    viz: str | None = None,
+    trajectory_format: str = "tum",
+    options: dict | None = None,
+    on_frame=None,
+):
+    """Run SLAM on a live camera or stream (``camera:0``, ``rtsp://...``; see :mod:`vslam.datasets.live`).
+
+    ``camera`` (a calibration file) is required. The backend runs in ``realtime`` mode (local
+    mapping and loop closing in their own threads) unless ``overrides`` set ``backend.mode``. The
+    tracker always gets the newest frame; frames that arrived while it was busy are dropped and
+    counted (``dropped_frames`` in the stats, ``captured_frames`` all frames grabbed). The run
+    ends when the stream ends, after ``max_frames``, or on Ctrl-C (SIGINT, when called from the
+    main thread: the first one ends the run normally, with the trajectory, map and stats written;
+    a second one aborts). ``options`` go to :class:`~vslam.datasets.live.LiveDataset` (``fps``,
+    ``clock``); ``on_frame(frame, result)`` is called after each tracked frame.
+    Returns a :class:`vslam.runner.RunResult`.
+    """
+    import dataclasses
+    import signal
+    import threading
+
+    from vslam.datasets.live import LiveDataset
+    from vslam.runner import run_sequence
+    from vslam.system import System
+
+    cfg = resolve_config(config, overrides)
+    if not any(str(o).split("=", 1)[0].strip() == "backend.mode" for o in overrides):
+        cfg = dataclasses.replace(cfg, backend=dataclasses.replace(cfg.backend, mode="realtime"))
+    ds = LiveDataset(str(source), camera=camera, **(options or {}))
+    log.info("camera: %s", ds.calibration_source)
+    system = System(cfg, ds.camera, sensor="mono")
+    callbacks = [on_frame] if on_frame is not None else []
+    viewer = None
+    previous_handler, installed = None, False
+    stats = {"sensor": "mono", "dataset": "live", "path": str(source), "start_frame": 0,
+             "camera": ds.calibration_source}
+    try:
+        if viz:
+            from vslam.viz.rerun_viewer import RerunViewer
+
+            viewer = RerunViewer.from_spec(viz, system=system)
+            callbacks.insert(0, viewer.bind(system))
+        if threading.current_thread() is threading.main_thread():
+            def stop_on_sigint(signum, frame):  # first Ctrl-C: end the stream, keep every output
+                log.warning("%s: stopping (Ctrl-C again to abort)", source)
+                ds.stop()
+                signal.signal(signal.SIGINT, previous_handler or signal.default_int_handler)
+
+            previous_handler = signal.signal(signal.SIGINT, stop_on_sigint)
+            installed = True
+        log.info("running live %s (mono, %s)", source, cfg.backend.mode)
+        result = run_sequence(
+            system, ds.frames(max_frames, counts=stats), total=max_frames, prefetch_mode="none", output_dir=output,
+            config=cfg, progress=progress, extra_stats=stats,
+            on_frame=(lambda f, r: [cb(f, r) for cb in callbacks]) if callbacks else None,
+        )
+    finally:
+        if installed:
+            signal.signal(signal.SIGINT, previous_handler if previous_handler is not None else signal.default_int_handler)
+        if viewer is not None:
+            viewer.close()
+        ds.close()
+    if trajectory_format != "tum" and output is not None and len(result.trajectory):
+        result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
     return result

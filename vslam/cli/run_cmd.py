@@ -11,9 +11,12 @@ log = logging.getLogger(__name__)
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "run", help="run SLAM on a sequence",
-        description="Run SLAM on a sequence (TUM, KITTI, EuRoC, 7-Scenes, image folder, video or ROS 1/2 bag).",
+        description="Run SLAM on a sequence (TUM, KITTI, EuRoC, 7-Scenes, image folder, video or ROS 1/2 bag) "
+                    "or live on a camera (camera:0) or stream (rtsp://..., http://...; needs --camera, "
+                    "runs until the stream ends or Ctrl-C, which still writes every output).",
     )
-    p.add_argument("path", help="sequence folder, video file or ROS bag (.bag file or ROS 2 bag folder)")
+    p.add_argument("path", help="sequence folder, video file, ROS bag (.bag file or ROS 2 bag folder), "
+                                "or live: camera:N, rtsp://..., http://...")
     p.add_argument("--output", "-o", required=True, help="output folder")
     p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: rgbd, else stereo, else mono")
     p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder, video, rosbag")
@@ -55,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     print(line)
     if "camera" in s:
         print(f"camera: {s['camera']}")
+    if "dropped_frames" in s:
+        print(f"live: {s['captured_frames']} frames captured, {s['dropped_frames']} dropped while the tracker was busy")
     if "ate_rmse" in s:
         scale = " (Sim(3)-aligned: monocular scale is arbitrary)" if s.get("sensor") == "mono" else ""
         print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses{scale}")

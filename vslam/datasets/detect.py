@@ -10,6 +10,9 @@ Detection (first match wins):
   sequence is accepted too)
 * ``seq-*`` folders or ``frame-*.color.*`` files -> ``7scenes``
 * image files -> ``folder``
+
+``camera:N`` and stream URLs (``rtsp://``, ``http://`` ...) are not paths: they open a live
+source (:class:`~vslam.datasets.live.LiveDataset`, ``live``).
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ from pathlib import Path
 from vslam.datasets.base import IMAGE_EXTENSIONS, Dataset
 from vslam.errors import DatasetError
 
-KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video", "rosbag")
+KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video", "rosbag", "live")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
 _ALIASES = {"bag": "rosbag", "ros": "rosbag", "sevenscenes": "7scenes", "7-scenes": "7scenes", "images": "folder", "tum_rgbd": "tum", "asl": "euroc"}
 
@@ -75,9 +78,9 @@ def open_dataset(
     """Open a sequence for streaming :class:`~vslam.datasets.frame.Frame` records.
 
     Args:
-        path: the sequence folder (or a video file).
-        kind: force the format: ``tum``, ``kitti``, ``euroc``, ``7scenes``, ``folder``, ``video``
-            (detected from the path when None).
+        path: the sequence folder (or a video file, or a live source ``camera:0`` / ``rtsp://...``).
+        kind: force the format: ``tum``, ``kitti``, ``euroc``, ``7scenes``, ``folder``, ``video``,
+            ``rosbag``, ``live`` (detected from the path when None).
         sensor: ``mono``, ``stereo`` or ``rgbd``; None picks the richest the data has.
         camera: a :class:`~vslam.geometry.camera.PinholeCamera` or a camera YAML path overriding the
             calibration (TUM, folder, video).
@@ -88,6 +91,12 @@ def open_dataset(
         >>> len(ds), ds.sensor, ds.camera.baseline  # doctest: +SKIP
         (51, 'stereo', 0.53716...)
     """
+    from vslam.datasets.live import is_live_source
+
+    if kind == "live" or (kind is None and is_live_source(str(path))):
+        from vslam.datasets.live import LiveDataset
+
+        return LiveDataset(str(path), sensor=sensor, camera=camera, **options)
     path = Path(path)
     if kind is None:
         kind = detect_kind(path)
