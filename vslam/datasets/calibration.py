@@ -298,7 +298,9 @@ def _read_vslam(path: Path, data: dict, image_size, fmt: str) -> Calibration:
         dist = f.array("dist", (0, 4), [])
         w, h = _size(f, "width", "height", image_size)
         cam = _camera(f.number("fx"), f.number("fy"), f.number("cx"), f.number("cy"), w, h, dist, model, str(path))
-        extras = {k: f.number(k) for k in ("fps", "depth_scale") if k in data}
+        extras = {k: f.number(k) for k in ("fps", "depth_scale", "balance") if k in data}
+        if not 0.0 <= extras.get("balance", 0.0) <= 1.0:
+            raise CalibrationError(f"{path}: balance must be in [0, 1] (0: only valid pixels, 1: the whole field of view)")
         return Calibration(cam, fmt, model, extras=extras, source=str(path))
     try:
         cam, extras = read_camera_yaml(path, image_size)
@@ -501,6 +503,8 @@ def frame_camera(cal: Calibration) -> tuple[PinholeCamera, Rectifier | None]:
     """The camera the pipeline sees and the :class:`Rectifier` to apply to images (None: none)."""
     if not cal.needs_remap:
         return cal.camera, None
-    rect = Rectifier(cal)
-    log.info("%s: images are remapped to a pinhole camera (fx %.1f)", cal.source, rect.camera.fx)
+    rect = Rectifier(cal, balance=float(cal.extras.get("balance", 0.0)))
+    c = rect.camera
+    log.info("%s: images are remapped to a pinhole camera (fx %.1f, field of view %.0f x %.0f deg)", cal.source,
+             c.fx, 2 * np.degrees(np.arctan(c.width / (2 * c.fx))), 2 * np.degrees(np.arctan(c.height / (2 * c.fy))))
     return rect.camera, rect
