@@ -134,11 +134,13 @@ def run_path(
     camera: str | Path | None = None,
     trajectory_format: str = "tum",
     topics: str | None = None,
+    viz_options: dict | None = None,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
     ``dense`` also fuses the keyframes into a TSDF mesh (``mesh.ply``, ``dense.ply``; RGB-D or
-    stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
+    stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``);
+    ``viz_options`` go to :class:`vslam.viz.rerun_viewer.RerunViewer` (``image_scale``, ``image_every``).
     ``prefetch`` (``auto``, ``thread``, ``process``, ``none``) is where frames are decoded and
     features detected ahead of tracking (see :func:`vslam.runner.run_sequence`); ``auto`` uses a
     child process on long runs when that is safe (a script calling this should guard its work
@@ -161,7 +163,7 @@ def run_path(
         if start_frame:
             raise DatasetError("--start-frame does not apply to live input")
         return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
-                        progress=progress, viz=viz, trajectory_format=trajectory_format)
+                        progress=progress, viz=viz, trajectory_format=trajectory_format, viz_options=viz_options)
     cfg = resolve_config(config, overrides)
     options = {"topics": topics} if topics else {}
     ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
@@ -174,7 +176,7 @@ def run_path(
     if viz:
         from vslam.viz.rerun_viewer import RerunViewer
 
-        viewer = RerunViewer.from_spec(viz, system=system)
+        viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
         on_frame = viewer.bind(system)
     if dense and sensor == "mono":
         raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
@@ -212,6 +214,7 @@ def run_live(
     trajectory_format: str = "tum",
     options: dict | None = None,
     on_frame=None,
+    viz_options: dict | None = None,
 ):
     """Run SLAM on a live camera or stream (``camera:0``, ``rtsp://...``; see :mod:`vslam.datasets.live`).
 
@@ -248,7 +251,7 @@ def run_live(
         if viz:
             from vslam.viz.rerun_viewer import RerunViewer
 
-            viewer = RerunViewer.from_spec(viz, system=system)
+            viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
             callbacks.insert(0, viewer.bind(system))
         if threading.current_thread() is threading.main_thread():
             def stop_on_sigint(signum, frame):  # first Ctrl-C: end the stream, keep every output

@@ -173,13 +173,18 @@ def test_slow_tracker_drops_frames_in_the_run_stats(monkeypatch, camera_yaml, tm
 
 
 def test_ctrl_c_ends_the_run_with_all_outputs(monkeypatch, camera_yaml, tmp_path, capsys):
-    """SIGINT (Ctrl-C) after 25 frames of an endless camera: `vslam run` exits 0 with stats,
-    trajectory, keyframes and map; a second SIGINT handler is the previous one again."""
+    """SIGINT (Ctrl-C) after 25 frames of an endless camera, recorded with --viz: `vslam run` exits
+    0 with stats, trajectory, keyframes, map and the .rrd; the SIGINT handler is the previous one again."""
     _fake(monkeypatch, fps=30.0, end="sigint", sigint_after=25)
     before = signal.getsignal(signal.SIGINT)
     out = tmp_path / "live"
-    rc = main(["run", "camera:0", "--camera", str(camera_yaml), "-o", str(out), "--no-progress"])
+    pytest.importorskip("rerun")
+    monkeypatch.setenv("RERUN_TELEMETRY", "0")
+    rrd = tmp_path / "live.rrd"
+    rc = main(["run", "camera:0", "--camera", str(camera_yaml), "-o", str(out), "--no-progress",
+               "--viz", f"rerun:{rrd}", "--viz-scale", "0.5", "--viz-every", "2"])
     assert rc == 0
+    assert rrd.stat().st_size > 10_000 and b"world/camera/image" in rrd.read_bytes()
     assert signal.getsignal(signal.SIGINT) is before
     text = capsys.readouterr().out
     assert "frames captured" in text and "dropped" in text

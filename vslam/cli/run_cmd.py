@@ -33,6 +33,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--start-frame", type=int, default=0, help="first frame to use")
     p.add_argument("--viz", metavar="rerun[:FILE.rrd]",
                    help="stream to a rerun viewer, or record to FILE.rrd (needs the viz extra)")
+    p.add_argument("--viz-scale", type=float, default=1.0, metavar="S",
+                   help="log images at S times their size, e.g. 0.5 (smaller recordings; 0 < S <= 1)")
+    p.add_argument("--viz-every", type=int, default=1, metavar="N",
+                   help="log the image of every N-th frame only (poses and map every frame)")
     p.add_argument("--dense", action="store_true",
                    help="also fuse the keyframes into a TSDF mesh: mesh.ply, dense.ply (rgbd/stereo; dense extra)")
     p.add_argument("--trajectory-format", choices=["tum", "kitti", "euroc"], default="tum",
@@ -45,12 +49,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from vslam.api import run_path
+    from vslam.errors import VslamError
+
+    if not 0.0 < args.viz_scale <= 1.0:
+        raise VslamError(f"--viz-scale {args.viz_scale:g}: use a factor in (0, 1], e.g. 0.5")
+    viz_options = {"image_scale": 1.0 / args.viz_scale, "image_every": args.viz_every}
 
     result = run_path(
         args.path, args.output, sensor=args.sensor, dataset=args.dataset, config=args.config,
         overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
         progress=not args.no_progress, viz=args.viz, dense=args.dense, camera=args.camera,
-        trajectory_format=args.trajectory_format, topics=args.topics,
+        trajectory_format=args.trajectory_format, topics=args.topics, viz_options=viz_options,
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \
