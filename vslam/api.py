@@ -99,6 +99,19 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
     return ds, sensor, stop
 
 
+def progress_bar(enabled: bool = True):
+    """A tqdm factory writing to stderr for the library's ``progress=`` arguments, or None when
+    ``enabled`` is false or stderr is not a terminal (logs and pipes get no bars)."""
+    import functools
+    import sys
+
+    if not enabled or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True)
+
+
 TRAJECTORY_FORMATS = ("tum", "kitti", "euroc")
 
 
@@ -197,7 +210,7 @@ def run_path(
         from vslam.reconstruction import reconstruct_run
         from vslam.runner import write_stats
 
-        result.stats["dense"] = reconstruct_run(output)
+        result.stats["dense"] = reconstruct_run(output, progress=progress_bar(progress))
         write_stats(Path(output), result.stats)
     return result
 
