@@ -5,15 +5,15 @@ VENV ?= .venv
 # chromium for the HTML-report browser test.
 BASE_DEBS := libgl1 libgomp1
 TEST_DEBS := $(BASE_DEBS) libusb-1.0-0 chromium
-TEST_EXTRAS := test,dense,viz,ray
+TEST_EXTRAS := test,dense,viz,ray,ros
 
 .PHONY: demo test install install-test clean
 
-$(VENV)/.installed: pyproject.toml scripts/bootstrap.sh
+$(VENV)/.installed: pyproject.toml constraints.txt scripts/bootstrap.sh
 	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)" "" $(BASE_DEBS)
 	touch $@
 
-$(VENV)/.installed-test: pyproject.toml scripts/bootstrap.sh
+$(VENV)/.installed-test: pyproject.toml constraints.txt scripts/bootstrap.sh
 	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)" "$(TEST_EXTRAS)" $(TEST_DEBS)
 	touch $@ $(VENV)/.installed
 

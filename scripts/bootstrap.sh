@@ -36,7 +36,9 @@ fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
 spec="."
 [ -n "$EXTRAS" ] && spec=".[${EXTRAS}]"
-"$VENV/bin/python" -m pip install -q -e "$spec"
+constraints=()
+[ -f constraints.txt ] && constraints=(-c constraints.txt)  # the exact versions vslam is tested with
+"$VENV/bin/python" -m pip install -q "${constraints[@]}" -e "$spec"
 # rerun's CLI asks about telemetry on first use; answer it once, non-interactively.
 if [ -x "$VENV/bin/rerun" ]; then "$VENV/bin/rerun" analytics disable >/dev/null 2>&1 </dev/null || true; fi
 echo "vslam installed in $VENV${EXTRAS:+ with extras $EXTRAS}"

@@ -46,13 +46,38 @@ def resolve_config(config: str | Path | object | None, overrides) -> object:
     Config object, with ``overrides`` applied on top when there are any."""
     from vslam.config import Config
 
+    if isinstance(config, (str, Path)):
+        _refuse_calibration_as_config(Path(config))
     if config is None or isinstance(config, (str, Path)):
         return load_config(Config, config, overrides)
     return load_config(Config, None, overrides) if overrides else config
 
 
+def _refuse_calibration_as_config(path: Path) -> None:
+    """A camera calibration (ORB-SLAM settings, OpenCV, Kalibr ...) passed as ``--config`` is a
+    common mistake: say so and point to ``--camera``."""
+    from vslam.datasets.calibration import FORMAT_NAMES, detect_camera_format
+    from vslam.errors import ConfigError
+
+    if not path.is_file() or path.suffix.lower() not in (".yaml", ".yml"):
+        return
+    try:
+        from vslam.datasets.base import _load_yaml
+
+        data = _load_yaml(path)
+    except DatasetError:
+        return
+    fmt = detect_camera_format(data)
+    if fmt is not None:
+        raise ConfigError(
+            f"{path}: this is a camera calibration ({FORMAT_NAMES[fmt]}), not a vslam settings file; "
+            f"pass it as --camera {path}"
+        )
+
+
 def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, start_frame: int,
-                  max_frames: int | None, preferred_sensor: str | None = None):
+                  max_frames: int | None, preferred_sensor: str | None = None, camera=None,
+                  options: dict | None = None):
     """Open the sequence at ``path`` for ``sensor`` (default: ``preferred_sensor`` when the data has
     it, else :func:`choose_sensor`'s) and check the frame range.
 
@@ -61,11 +86,12 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
     """
     from vslam.datasets import open_dataset
 
-    probe = open_dataset(path, kind=dataset)
+    options = options or {}
+    probe = open_dataset(path, kind=dataset, camera=camera, **options)
     if sensor is None and preferred_sensor in probe.sensors:
         sensor = preferred_sensor
     sensor = choose_sensor(probe.sensors, sensor)
-    ds = open_dataset(path, kind=dataset, sensor=sensor)
+    ds = probe if sensor == probe.sensor else open_dataset(path, kind=dataset, sensor=sensor, camera=camera, **options)
     n = len(ds)
     if start_frame < 0 or start_frame >= n:
         raise DatasetError(f"--start-frame {start_frame} is outside the sequence (0..{n - 1})")
@@ -73,6 +99,38 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
         raise DatasetError(f"--max-frames must be at least 1, got {max_frames}")
     stop = n if max_frames is None else min(n, start_frame + max_frames)
     return ds, sensor, stop
+
+
+def progress_bar(enabled: bool = True):
+    """A tqdm factory writing to stderr for the library's ``progress=`` arguments, or None when
+    ``enabled`` is false or stderr is not a terminal (logs and pipes get no bars)."""
+    import functools
+    import sys
+
+    if not enabled or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return functools.partial(tqdm, file=sys.stderr, leave=False, dynamic_ncols=True)
+
+
+TRAJECTORY_FORMATS = ("tum", "kitti", "euroc")
+
+
+def export_trajectory(out_dir: Path, trajectory, fmt: str) -> Path:
+    """Write ``trajectory`` beside the run folder's TUM ``trajectory.txt`` in another format:
+    ``trajectory_kitti.txt`` (+ ``trajectory_kitti_times.txt``) or ``trajectory_euroc.csv``."""
+    from vslam.trajectory import write_trajectory
+
+    if fmt not in TRAJECTORY_FORMATS:
+        raise DatasetError(f"unknown trajectory format {fmt!r}; use one of {', '.join(TRAJECTORY_FORMATS)}")
+    if fmt == "kitti":
+        path = out_dir / "trajectory_kitti.txt"
+        write_trajectory(path, trajectory, "kitti", out_dir / "trajectory_kitti_times.txt")
+    else:
+        path = out_dir / "trajectory_euroc.csv"
+        write_trajectory(path, trajectory, "euroc")
+    return path
 
 
 def run_path(
@@ -88,24 +146,44 @@ def run_path(
     viz: str | None = None,
     dense: bool = False,
     prefetch: str = "auto",
+    camera: str | Path | None = None,
+    trajectory_format: str = "tum",
+    topics: str | None = None,
+    viz_options: dict | None = None,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
     ``dense`` also fuses the keyframes into a TSDF mesh (``mesh.ply``, ``dense.ply``; RGB-D or
-    stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``).
+    stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``);
+    ``viz_options`` go to :class:`vslam.viz.rerun_viewer.RerunViewer` (``image_scale``, ``image_every``).
     ``prefetch`` (``auto``, ``thread``, ``process``, ``none``) is where frames are decoded and
     features detected ahead of tracking (see :func:`vslam.runner.run_sequence`); ``auto`` uses a
     child process on long runs when that is safe (a script calling this should guard its work
     with ``if __name__ == "__main__":``, as any program using multiprocessing must). The poses do
     not depend on it.
+    ``camera`` is a calibration file in any format :mod:`vslam.datasets.calibration` reads (or a
+    TUM preset name ``fr1``/``fr2``/``fr3``), overriding the sequence's own calibration.
+    ``trajectory_format`` (``kitti``, ``euroc``) also writes the trajectory in that format.
+    ``topics`` (``COLOR[,DEPTH|,RIGHT]``) picks the image topics of a ROS bag.
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
+    from vslam.datasets.live import is_live_source
     from vslam.datasets.prefetch import FrameRange
     from vslam.runner import run_sequence
     from vslam.system import System
 
+    if dataset == "live" or (dataset is None and is_live_source(str(path))):
+        if dense:
+            raise DatasetError("--dense needs depth; live input is mono")
+        if start_frame:
+            raise DatasetError("--start-frame does not apply to live input")
+        return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
+                        progress=progress, viz=viz, trajectory_format=trajectory_format, viz_options=viz_options)
     cfg = resolve_config(config, overrides)
-    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames)
+    options = {"topics": topics} if topics else {}
+    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
+    if getattr(ds, "calibration_source", None):
+        log.info("camera: %s", ds.calibration_source)
     system = System(cfg, ds.camera, sensor=sensor)
     gt = ds.ground_truth()
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
@@ -113,7 +191,7 @@ def run_path(
     if viz:
         from vslam.viz.rerun_viewer import RerunViewer
 
-        viewer = RerunViewer.from_spec(viz, system=system)
+        viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
         on_frame = viewer.bind(system)
     if dense and sensor == "mono":
         raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
@@ -122,16 +200,95 @@ def run_path(
             system, FrameRange(ds, start_frame, stop), total=stop - start_frame, prefetch_mode=prefetch, output_dir=output, config=cfg,
             ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
-                         "start_frame": start_frame},
+                         "start_frame": start_frame,
+                         **({"camera": ds.calibration_source} if getattr(ds, "calibration_source", None) else {})},
             inputs=(path,),
         )
     finally:
         if viewer is not None:
             viewer.close()
+    if trajectory_format != "tum" and output is not None and len(result.trajectory):
+        result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
     if dense and output is not None:
         from vslam.reconstruction import reconstruct_run
         from vslam.runner import write_stats
 
-        result.stats["dense"] = reconstruct_run(output)
+        result.stats["dense"] = reconstruct_run(output, progress=progress_bar(progress))
         write_stats(Path(output), result.stats)
+    return result
+
+
+def run_live(
+    source: str,
+    output: str | Path | None,
+    camera: str | Path | None = None,
+    config: str | Path | object | None = None,
+    overrides: list[str] | tuple[str, ...] = (),
+    max_frames: int | None = None,
+    progress: bool = False,
+    viz: str | None = None,
+    trajectory_format: str = "tum",
+    options: dict | None = None,
+    on_frame=None,
+    viz_options: dict | None = None,
+):
+    """Run SLAM on a live camera or stream (``camera:0``, ``rtsp://...``; see :mod:`vslam.datasets.live`).
+
+    ``camera`` (a calibration file) is required. The backend runs in ``realtime`` mode (local
+    mapping and loop closing in their own threads) unless ``overrides`` set ``backend.mode``. The
+    tracker always gets the newest frame; frames that arrived while it was busy are dropped and
+    counted (``dropped_frames`` in the stats, ``captured_frames`` all frames grabbed). The run
+    ends when the stream ends, after ``max_frames``, or on Ctrl-C (SIGINT, when called from the
+    main thread: the first one ends the run normally, with the trajectory, map and stats written;
+    a second one aborts). ``options`` go to :class:`~vslam.datasets.live.LiveDataset` (``fps``,
+    ``clock``); ``on_frame(frame, result)`` is called after each tracked frame.
+    Returns a :class:`vslam.runner.RunResult`.
+    """
+    import dataclasses
+    import signal
+    import threading
+
+    from vslam.datasets.live import LiveDataset
+    from vslam.runner import run_sequence
+    from vslam.system import System
+
+    cfg = resolve_config(config, overrides)
+    if not any(str(o).split("=", 1)[0].strip() == "backend.mode" for o in overrides):
+        cfg = dataclasses.replace(cfg, backend=dataclasses.replace(cfg.backend, mode="realtime"))
+    ds = LiveDataset(str(source), camera=camera, **(options or {}))
+    log.info("camera: %s", ds.calibration_source)
+    system = System(cfg, ds.camera, sensor="mono")
+    callbacks = [on_frame] if on_frame is not None else []
+    viewer = None
+    previous_handler, installed = None, False
+    stats = {"sensor": "mono", "dataset": "live", "path": str(source), "start_frame": 0,
+             "camera": ds.calibration_source}
+    try:
+        if viz:
+            from vslam.viz.rerun_viewer import RerunViewer
+
+            viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
+            callbacks.insert(0, viewer.bind(system))
+        if threading.current_thread() is threading.main_thread():
+            def stop_on_sigint(signum, frame):  # first Ctrl-C: end the stream, keep every output
+                log.warning("%s: stopping (Ctrl-C again to abort)", source)
+                ds.stop()
+                signal.signal(signal.SIGINT, previous_handler or signal.default_int_handler)
+
+            previous_handler = signal.signal(signal.SIGINT, stop_on_sigint)
+            installed = True
+        log.info("running live %s (mono, %s)", source, cfg.backend.mode)
+        result = run_sequence(
+            system, ds.frames(max_frames, counts=stats), total=max_frames, prefetch_mode="none", output_dir=output,
+            config=cfg, progress=progress, extra_stats=stats,
+            on_frame=(lambda f, r: [cb(f, r) for cb in callbacks]) if callbacks else None,
+        )
+    finally:
+        if installed:
+            signal.signal(signal.SIGINT, previous_handler if previous_handler is not None else signal.default_int_handler)
+        if viewer is not None:
+            viewer.close()
+        ds.close()
+    if trajectory_format != "tum" and output is not None and len(result.trajectory):
+        result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
     return result

@@ -51,6 +51,7 @@ def localize_path(
     config: str | Path | Any | None = None,
     overrides: list[str] | tuple[str, ...] = (),
     progress: bool = False,
+    camera: str | Path | None = None,
 ):
     """Localize the frames ``start_frame ..`` of the sequence at ``path`` in the map saved in ``map_dir``.
 
@@ -83,7 +84,7 @@ def localize_path(
         raise MapFormatError(f"{map_dir}: the map has no keyframes; nothing to localize against")
 
     ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames,
-                                     preferred_sensor=metadata.get("sensor"))
+                                     preferred_sensor=metadata.get("sensor"), camera=camera)
     camera = ds.camera
     if map_camera is not None and (abs(map_camera.fx - camera.fx) > 1e-3 * camera.fx
                                    or map_camera.width != camera.width or map_camera.height != camera.height):

@@ -15,7 +15,7 @@ def tum(shared_data):
 
 def test_eval_sim3_json_and_plot(tum, tmp_path, capsys):
     out_json, out_png = tmp_path / "r.json", tmp_path / "r.png"
-    rc = main(["eval", str(tum / "freiburg1_xyz-ORB_kf_mono.txt"), str(tum / "freiburg1_xyz-groundtruth.txt"),
+    rc = main(["eval", str(tum / "freiburg1_xyz-groundtruth.txt"), str(tum / "freiburg1_xyz-ORB_kf_mono.txt"),
                "--align", "sim3", "--json", str(out_json), "--plot", str(out_png)])
     assert rc == 0
     text = capsys.readouterr().out
@@ -32,7 +32,7 @@ def test_eval_sim3_json_and_plot(tum, tmp_path, capsys):
 def test_eval_kitti_by_index_with_lengths(shared_data, tmp_path, capsys):
     k = shared_data / "trajectories" / "kitti"
     out_json = tmp_path / "k.json"
-    rc = main(["eval", str(k / "KITTI_00_ORB.txt"), str(k / "KITTI_00_gt.txt"), "--kitti",
+    rc = main(["eval", str(k / "KITTI_00_gt.txt"), str(k / "KITTI_00_ORB.txt"), "--kitti",
                "--lengths", "100", "200", "--delta", "10", "--delta-unit", "m", "--json", str(out_json)])
     assert rc == 0
     assert "matched poses: 4541 (by index)" in capsys.readouterr().out
@@ -42,13 +42,33 @@ def test_eval_kitti_by_index_with_lengths(shared_data, tmp_path, capsys):
     assert d["rpe_delta_unit"] == "m" and d["rpe_pairs"] > 300
 
 
-def test_eval_fr2_desk_duplicates(tum, capsys):
-    args = ["eval", str(tum / "fr2_desk_ORB.txt"), str(tum / "fr2_desk_groundtruth.txt")]
-    assert main(args) == 2
+def test_eval_fr2_desk_duplicates(tum, capsys, caplog):
+    """The official fr2/desk ground truth repeats a timestamp: accepted with a warning (as evo)."""
+    args = ["eval", str(tum / "fr2_desk_groundtruth.txt"), str(tum / "fr2_desk_ORB.txt")]
+    with caplog.at_level("WARNING"):
+        assert main(args) == 0
+    assert "matched poses: 2174" in capsys.readouterr().out
+    assert any("dropped 1 poses with duplicate timestamps" in r.getMessage() for r in caplog.records)
+    assert main(args + ["--duplicates", "error"]) == 2
     err = capsys.readouterr().err
     assert "fr2_desk_groundtruth.txt:10863: duplicate timestamp" in err and "keep-last" in err
-    assert main(args + ["--duplicates", "keep-last"]) == 0
-    assert "matched poses: 2174" in capsys.readouterr().out
+
+
+def test_eval_reference_first_and_monocular_default(tum, tmp_path, capsys):
+    """REF first; EST from a monocular run folder defaults to Sim(3), and the printout says so."""
+    run = tmp_path / "run"
+    run.mkdir()
+    est = run / "trajectory.txt"
+    est.write_text((tum / "freiburg1_xyz-ORB_kf_mono.txt").read_text())
+    gt = str(tum / "freiburg1_xyz-groundtruth.txt")
+    assert main(["eval", gt, str(est)]) == 0
+    out = capsys.readouterr().out
+    assert "alignment se3: default" in out and f"ground truth:  {gt}" in out
+    (run / "stats.json").write_text(json.dumps({"sensor": "mono"}))
+    assert main(["eval", gt, str(est), "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    assert "alignment sim3: default for a monocular run" in out
+    assert json.loads((tmp_path / "r.json").read_text())["ate_rmse"] == pytest.approx(0.0097546, abs=1e-6)
 
 
 BAD = {
@@ -65,7 +85,7 @@ def test_eval_bad_input_exits_cleanly(tum, tmp_path, capsys, case):
     text, needle = BAD[case]
     est = tmp_path / f"{case}.txt"
     est.write_text(text)
-    rc = main(["eval", str(est), str(tum / "freiburg1_xyz-groundtruth.txt")])
+    rc = main(["eval", str(tum / "freiburg1_xyz-groundtruth.txt"), str(est)])
     captured = capsys.readouterr()
     assert rc == 2
     assert needle in captured.err and captured.err.startswith("vslam eval: error: ")
@@ -74,6 +94,6 @@ def test_eval_bad_input_exits_cleanly(tum, tmp_path, capsys, case):
 
 
 def test_eval_missing_file(tmp_path, capsys):
-    rc = main(["eval", str(tmp_path / "est.txt"), str(tmp_path / "gt.txt")])
+    rc = main(["eval", str(tmp_path / "gt.txt"), str(tmp_path / "est.txt")])
     err = capsys.readouterr().err
     assert rc == 2 and "est.txt: trajectory file not found" in err and "Traceback" not in err

@@ -664,8 +664,8 @@ TEXT_CASES = {
                                        "-o", tmp / "r.html"], "results.json:2"),
     "stats.json": lambda tmp, seq: (["report", _non_utf8(tmp / "run" / "stats.json", '{"frames": 1}').parent,
                                      "-o", tmp / "r.html"], "stats.json:2"),
-    "groundtruth.txt": lambda tmp, seq: (["eval", _non_utf8(tmp / "e.txt", "1 0 0 0 0 0 0 1"),
-                                          _non_utf8(tmp / "g.txt", "1 0 0 0 0 0 0 1")], "e.txt:2"),
+    "groundtruth.txt": lambda tmp, seq: (["eval", _non_utf8(tmp / "g.txt", "1 0 0 0 0 0 0 1"),
+                                          _non_utf8(tmp / "e.txt", "1 0 0 0 0 0 0 1")], "e.txt:2"),
 }
 
 

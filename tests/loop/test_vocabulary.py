@@ -259,3 +259,30 @@ def test_transform_of_no_descriptors_is_empty(small_vocabulary):
     for empty in (None, np.zeros((0, 32), np.uint8)):
         bow, nodes = voc.transform(empty)
         assert len(bow) == 0 and nodes.shape == (0,)
+
+
+def test_training_progress_counts_descriptors_per_level():
+    """The bar's total is levels x descriptors; each split adds its cluster's size (the last
+    level's clusters are leaves and are not split)."""
+    rng = np.random.default_rng(4)
+    _, desc = clustered_descriptors(rng, 8, 20, 30)
+    sets = np.array_split(desc, 8)
+    bars = []
+
+    class Bar:
+        def __init__(self, total, desc, unit):
+            self.total, self.n, self.closed = total, 0, False
+            bars.append(self)
+
+        def update(self, n):
+            self.n += n
+
+        def close(self):
+            self.closed = True
+
+    voc = Vocabulary.train(sets, VocabularyConfig(k=4, levels=2, seed=1), progress=Bar)
+    plain = Vocabulary.train(sets, VocabularyConfig(k=4, levels=2, seed=1))
+    assert np.array_equal(voc.descriptors, plain.descriptors)
+    (bar,) = bars
+    assert bar.total == 2 * 160 and bar.closed
+    assert 160 + 150 <= bar.n <= 2 * 160  # the root (160) and its 4 children (all but singletons)

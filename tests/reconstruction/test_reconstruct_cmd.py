@@ -85,3 +85,31 @@ def test_select_frames_matches_within_tolerance():
     frames, poses = select_frames(ts, np.array([0.1004, 0.25, 0.3, -1.0]))
     np.testing.assert_array_equal(frames, [1, 3])
     np.testing.assert_array_equal(poses, [0, 2])
+
+
+class SpyBar:
+    """A tqdm-like factory recording what it was asked to show."""
+
+    def __init__(self):
+        self.calls, self.items = [], 0
+
+    def __call__(self, iterable=None, **kw):
+        self.calls.append(kw)
+        for item in iterable:
+            self.items += 1
+            yield item
+
+
+def test_fusion_progress_goes_to_the_given_bar_only(tmp_path, sequence, capsys):
+    """``progress=`` gets one frame per fused keyframe; without it, and from the CLI when stderr is
+    not a terminal (as under pytest), nothing is printed."""
+    root, gt = sequence
+    run = make_run(tmp_path / "run", root, gt)
+    spy = SpyBar()
+    res = reconstruct_run(run, voxel_size=0.08, progress=spy)
+    assert spy.calls == [{"total": 4, "desc": "TSDF fusion", "unit": "frame"}] and spy.items == res["frames_fused"] == 4
+    assert main(["reconstruct", str(run), "--voxel", "0.08"]) == 0
+    assert "TSDF" not in capsys.readouterr().err
+    from vslam.api import progress_bar
+
+    assert progress_bar(False) is None and progress_bar(True) is None  # stderr is captured, not a TTY

@@ -1,4 +1,9 @@
-"""``vslam eval EST GT``: ATE, RPE (and the KITTI metric) of an estimated trajectory."""
+"""``vslam eval REF EST``: ATE, RPE (and the KITTI metric) of an estimated trajectory.
+
+The reference (ground truth) comes first, as in ``evo_ape tum REF EST`` and TUM's
+``evaluate_ate.py``. The alignment defaults to Sim(3) when EST was written by a monocular
+``vslam run`` (its run folder's ``stats.json`` says ``sensor: mono``), SE(3) otherwise.
+"""
 from __future__ import annotations
 
 import argparse
@@ -13,14 +18,16 @@ FORMATS = ["tum", "kitti", "euroc"]
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "eval", help="evaluate a trajectory against ground truth (ATE, RPE, KITTI)",
-        description="Compare an estimated trajectory with ground truth: associate timestamps, align "
-                    "(SE(3), Sim(3) or none) and print ATE, RPE and optionally the KITTI odometry metric. "
+        description="Compare an estimated trajectory with a reference (ground truth): associate timestamps, "
+                    "align (SE(3), Sim(3) or none) and print ATE, RPE and optionally the KITTI odometry metric. "
+                    "The reference comes first, as in `evo_ape tum REF EST` and TUM's evaluate_ate.py. "
                     "KITTI files without a times file are associated by line index.",
     )
-    p.add_argument("est", help="estimated trajectory (TUM, KITTI or EuRoC CSV; detected)")
-    p.add_argument("gt", help="ground-truth trajectory")
-    p.add_argument("--align", choices=["se3", "sim3", "none", "scale", "origin"], default="se3",
-                   help="alignment of the estimate onto GT (default se3; sim3 for monocular)")
+    p.add_argument("gt", metavar="REF", help="reference (ground-truth) trajectory (TUM, KITTI or EuRoC CSV; detected)")
+    p.add_argument("est", metavar="EST", help="estimated trajectory")
+    p.add_argument("--align", choices=["se3", "sim3", "none", "scale", "origin"],
+                   help="alignment of the estimate onto the reference (default: sim3 when EST comes from a "
+                        "monocular vslam run, whose scale is arbitrary; se3 otherwise)")
     p.add_argument("--align-first", type=int, metavar="N", help="estimate the alignment from the first N matched poses")
     p.add_argument("--est-format", choices=FORMATS, help="format of EST (default: detected)")
     p.add_argument("--gt-format", choices=FORMATS, help="format of GT (default: detected)")
@@ -29,8 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--max-diff", type=float, default=0.01, help="max timestamp difference in s (default 0.01)")
     p.add_argument("--offset", type=float, default=0.0, help="seconds added to EST timestamps (default 0)")
     p.add_argument("--by-index", action="store_true", help="pair poses by index instead of timestamps")
-    p.add_argument("--duplicates", choices=["error", "keep-last"], default="error",
-                   help="repeated timestamps: fail (default) or keep the last pose, as the TUM tools do")
+    p.add_argument("--duplicates", choices=["error", "keep-last"],
+                   help="repeated timestamps: fail or keep the last pose, as the TUM tools do (default: the "
+                        "reference keeps the last with a warning, as evo does; the estimate fails)")
     p.add_argument("--delta", type=float, default=1, help="RPE step (default 1)")
     p.add_argument("--delta-unit", choices=["frames", "m"], default="frames", help="unit of --delta")
     p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
@@ -43,6 +51,28 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def monocular_run(est_path: str | Path) -> bool:
+    """Whether ``est_path`` lies in a run folder whose ``stats.json`` (or ``config.yaml``) says the
+    run was monocular."""
+    folder = Path(est_path).resolve().parent
+    stats = folder / "stats.json"
+    if stats.is_file():
+        try:
+            return json.loads(stats.read_text()).get("sensor") == "mono"
+        except (OSError, ValueError, AttributeError):
+            return False
+    cfg = folder / "config.yaml"
+    if cfg.is_file():
+        try:
+            import yaml
+
+            data = yaml.safe_load(cfg.read_text())
+        except (OSError, ValueError, yaml.YAMLError):
+            return False
+        return isinstance(data, dict) and data.get("sensor") == "mono"
+    return False
+
+
 def run(args: argparse.Namespace) -> int:
     from vslam.eval.evaluate import evaluate_files
     from vslam.outputs import atomic_write_text, check_output_file
@@ -50,18 +80,26 @@ def run(args: argparse.Namespace) -> int:
     for out_arg, what in ((args.json, "--json file"), (args.plot, "--plot file")):
         if out_arg:
             check_output_file(out_arg, what)  # refuse a folder before the work, not after printing
+    align, why = args.align, "as asked"
+    if align is None:
+        mono = monocular_run(args.est)
+        align = "sim3" if mono else "se3"
+        why = ("default for a monocular run (its scale is arbitrary)" if mono
+               else "default; pass --align sim3 for a monocular estimate")
+    dup = args.duplicates.replace("-", "_") if args.duplicates else None
     overrides = {}
     if args.by_index:
         overrides["by_index"] = True
     result = evaluate_files(
         args.est, args.gt, est_format=args.est_format, gt_format=args.gt_format,
-        est_times=args.est_times, gt_times=args.gt_times, duplicates=args.duplicates.replace("-", "_"),
-        align=args.align, align_first=args.align_first, max_diff=args.max_diff, offset=args.offset,
+        est_times=args.est_times, gt_times=args.gt_times, duplicates=dup or "error",
+        gt_duplicates=dup or "keep_last", align=align, align_first=args.align_first, max_diff=args.max_diff, offset=args.offset,
         rpe_delta=args.delta, rpe_delta_unit=args.delta_unit, rpe_all_pairs=args.all_pairs,
         kitti=args.kitti or bool(args.lengths), kitti_lengths=tuple(args.lengths) if args.lengths else None,
         **overrides,
     )
     print(result.summary())
+    print(f"alignment {align}: {why}")
     if args.json:
         out = Path(args.json)
         if not out.parent.is_dir():

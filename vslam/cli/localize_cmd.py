@@ -20,6 +20,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", required=True, help="output folder (trajectory.txt, stats.json)")
     p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: the map's sensor")
     p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder")
+    p.add_argument("--camera", metavar="FILE",
+                   help="camera calibration of the sequence (any format `vslam run --camera` reads)")
     p.add_argument("--config", help="YAML file with settings")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting, e.g. --set localize.min_inliers=40 (repeatable)")
@@ -36,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     result = localize_path(
         args.map_dir, args.path, args.output, sensor=args.sensor, dataset=args.dataset,
         start_frame=args.start_frame, max_frames=args.max_frames, config=args.config, overrides=args.overrides,
-        progress=not args.no_progress,
+        progress=not args.no_progress, camera=args.camera,
     )
     s = result.stats
     print(f"{s['localized']}/{s['frames']} frames localized ({s['tracked']} tracked, "

@@ -24,16 +24,18 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, metavar="N", help="fuse at most N frames, evenly spaced")
     p.add_argument("--output", "-o", help="write the PLY files here instead of RUN_DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
+    from vslam.api import progress_bar
     from vslam.reconstruction import reconstruct_run
 
     res = reconstruct_run(
         args.run_dir, voxel_size=args.voxel, every=args.every, depth_max=args.max_depth, sdf_trunc=args.sdf_trunc,
-        max_frames=args.max_frames, output_dir=args.output,
+        max_frames=args.max_frames, output_dir=args.output, progress=progress_bar(not args.no_progress),
     )
     if args.json:
         print(json.dumps(res, indent=2))

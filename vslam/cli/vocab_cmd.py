@@ -34,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     t.add_argument("--features", type=int, default=1000, help="ORB features per image (default 1000)")
     t.add_argument("--iterations", type=int, default=10, help="k-majority iterations per node (default 10)")
     t.add_argument("--seed", type=int, default=0, help="k-means++ seed (default 0)")
+    t.add_argument("--no-progress", action="store_true", help="no progress bars")
     t.add_argument("--format", choices=["npz", "dbow2-txt"], help="output format (default: from the extension)")
     t.set_defaults(func=run_train)
 
@@ -58,6 +59,7 @@ def _save(voc, output: str, fmt: str | None) -> Path:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from vslam.api import progress_bar
     from vslam.loop.config import VocabularyConfig
     from vslam.loop.training import default_training_descriptors, descriptors_from_sources
     from vslam.loop.vocabulary import Vocabulary
@@ -72,11 +74,12 @@ def run_train(args: argparse.Namespace) -> int:
     if len(real) < len(args.sources):
         sets += default_training_descriptors(n_features=args.features)
     if real:
-        sets += descriptors_from_sources(real, every=args.every, max_frames=args.max_frames, n_features=args.features)
+        sets += descriptors_from_sources(real, every=args.every, max_frames=args.max_frames, n_features=args.features,
+                                         progress=progress_bar(not args.no_progress))
     n_desc = sum(len(s) for s in sets)
     print(f"{len(sets)} images, {n_desc} ORB descriptors ({time.perf_counter() - t0:.1f} s)")
     t1 = time.perf_counter()
-    voc = Vocabulary.train(sets, config)
+    voc = Vocabulary.train(sets, config, progress=progress_bar(not args.no_progress))
     path = _save(voc, args.output, args.format)
     print(f"trained {voc} in {time.perf_counter() - t1:.1f} s -> {path} ({path.stat().st_size / 1024:.0f} KiB)")
     return 0

@@ -2,6 +2,7 @@
 
 Detection (first match wins):
 
+* a ROS 1 ``.bag`` file or a ROS 2 bag folder (``metadata.yaml``) -> ``rosbag``
 * a file with a video extension -> ``video``
 * ``rgb.txt`` or ``associate.txt`` in the folder -> ``tum``
 * ``mav0/`` in the folder, or the folder is ``mav0`` (``cam0/data.csv``) -> ``euroc``
@@ -9,6 +10,9 @@ Detection (first match wins):
   sequence is accepted too)
 * ``seq-*`` folders or ``frame-*.color.*`` files -> ``7scenes``
 * image files -> ``folder``
+
+``camera:N`` and stream URLs (``rtsp://``, ``http://`` ...) are not paths: they open a live
+source (:class:`~vslam.datasets.live.LiveDataset`, ``live``).
 """
 from __future__ import annotations
 
@@ -17,9 +21,9 @@ from pathlib import Path
 from vslam.datasets.base import IMAGE_EXTENSIONS, Dataset
 from vslam.errors import DatasetError
 
-KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video")
+KINDS = ("tum", "kitti", "euroc", "7scenes", "folder", "video", "rosbag", "live")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
-_ALIASES = {"sevenscenes": "7scenes", "7-scenes": "7scenes", "images": "folder", "tum_rgbd": "tum", "asl": "euroc"}
+_ALIASES = {"bag": "rosbag", "ros": "rosbag", "sevenscenes": "7scenes", "7-scenes": "7scenes", "images": "folder", "tum_rgbd": "tum", "asl": "euroc"}
 
 
 def detect_kind(path: str | Path) -> str:
@@ -27,6 +31,8 @@ def detect_kind(path: str | Path) -> str:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such file or folder; check the dataset path")
+    if (path.is_file() and path.suffix == ".bag") or (path.is_dir() and (path / "metadata.yaml").is_file()):
+        return "rosbag"
     if path.is_file():
         if path.suffix.lower() in VIDEO_EXTENSIONS:
             return "video"
@@ -72,9 +78,9 @@ def open_dataset(
     """Open a sequence for streaming :class:`~vslam.datasets.frame.Frame` records.
 
     Args:
-        path: the sequence folder (or a video file).
-        kind: force the format: ``tum``, ``kitti``, ``euroc``, ``7scenes``, ``folder``, ``video``
-            (detected from the path when None).
+        path: the sequence folder (or a video file, or a live source ``camera:0`` / ``rtsp://...``).
+        kind: force the format: ``tum``, ``kitti``, ``euroc``, ``7scenes``, ``folder``, ``video``,
+            ``rosbag``, ``live`` (detected from the path when None).
         sensor: ``mono``, ``stereo`` or ``rgbd``; None picks the richest the data has.
         camera: a :class:`~vslam.geometry.camera.PinholeCamera` or a camera YAML path overriding the
             calibration (TUM, folder, video).
@@ -85,6 +91,12 @@ def open_dataset(
         >>> len(ds), ds.sensor, ds.camera.baseline  # doctest: +SKIP
         (51, 'stereo', 0.53716...)
     """
+    from vslam.datasets.live import is_live_source
+
+    if kind == "live" or (kind is None and is_live_source(str(path))):
+        from vslam.datasets.live import LiveDataset
+
+        return LiveDataset(str(path), sensor=sensor, camera=camera, **options)
     path = Path(path)
     if kind is None:
         kind = detect_kind(path)
@@ -114,6 +126,10 @@ def open_dataset(
         from vslam.datasets.sevenscenes import SevenScenesDataset
 
         return SevenScenesDataset(path, sensor=sensor, camera=camera, **options)
+    if kind == "rosbag":
+        from vslam.datasets.rosbag import RosbagDataset
+
+        return RosbagDataset(path, sensor=sensor, camera=camera, **options)
     if kind == "folder":
         from vslam.datasets.folder import FolderDataset
 

@@ -1,9 +1,10 @@
 """A folder of images or a video file, calibrated by the small camera YAML. Mono only.
 
-The camera comes from the ``camera`` argument (a :class:`PinholeCamera` or a YAML path), else
-``camera.yaml`` beside the images (in the folder; for a video, in its folder or ``<video>.yaml``);
-see :func:`vslam.datasets.base.read_camera_yaml` (``width``/``height`` may be omitted: the first
-image's size is used). Timestamps are ``index / fps``; ``fps`` from the argument, the YAML, the
+The camera comes from the ``camera`` argument (a :class:`PinholeCamera` or a calibration file in
+any format :func:`vslam.datasets.calibration.read_camera_file` reads), else ``camera.yaml`` or a
+KITTI ``calib.txt`` beside the images (in the folder; for a video, in its folder or
+``<video>.yaml``); ``width``/``height`` may be omitted: the first image's size is used. A fisheye
+(equidistant) calibration is handled by remapping every image to a pinhole camera. Timestamps are ``index / fps``; ``fps`` from the argument, the YAML, the
 video, or 30. Images are sorted by name with numbers compared numerically. No ground truth.
 """
 from __future__ import annotations
@@ -14,7 +15,8 @@ from typing import Iterator
 
 import numpy as np
 
-from vslam.datasets.base import CorruptFrameError, Dataset, list_images, load_image, read_camera_yaml, require_dir
+from vslam.datasets.base import CorruptFrameError, Dataset, list_images, load_image, require_dir
+from vslam.datasets.calibration import Rectifier, frame_camera, read_camera_file
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
 from vslam.geometry.camera import PinholeCamera
@@ -25,18 +27,27 @@ DEFAULT_FPS = 30.0
 
 def _resolve_camera(
     camera: PinholeCamera | str | Path | None, candidates: list[Path], size: tuple[int, int], where: Path
-) -> tuple[PinholeCamera, dict]:
+) -> tuple[PinholeCamera, dict, Rectifier | None, str]:
+    """``(camera the pipeline sees, extras, image rectifier or None, where the calibration came from)``."""
     if isinstance(camera, PinholeCamera):
-        return camera, {}
+        return camera, {}, None, "the given camera"
+    cal = None
     if camera is not None:
-        return read_camera_yaml(camera, size)
-    for cand in candidates:
-        if cand.is_file():
-            return read_camera_yaml(cand, size)
-    raise CalibrationError(
-        f"{where}: no camera calibration; add {candidates[0]} with fx, fy, cx, cy, width, height "
-        f"(optional dist, fps) or pass a camera file"
-    )
+        cal = read_camera_file(camera, size)
+    else:
+        for cand in candidates:
+            if cand.is_file():
+                cal = read_camera_file(cand, size)
+                break
+    if cal is None:
+        raise CalibrationError(
+            f"{where}: no camera calibration; pass --camera FILE (camera.yaml, OpenCV, ORB-SLAM, Kalibr, ROS "
+            f"camera_info; see the README) or add {candidates[0]} with fx, fy, cx, cy, width, height (optional dist, fps)"
+        )
+    if cal.right is not None:
+        raise CalibrationError(f"{cal.source}: a stereo rig calibration, but {where} is a mono source")
+    cam, rect = frame_camera(cal)
+    return cam, cal.extras, rect, cal.describe()
 
 
 class FolderDataset(Dataset):
@@ -62,7 +73,8 @@ class FolderDataset(Dataset):
         if not self._files:
             raise DatasetError(f"{root}: no image files ({', '.join(('png', 'jpg', 'bmp', 'tif'))})")
         first = load_image(self._files[0])
-        self.camera, extras = _resolve_camera(camera, [root / "camera.yaml"], (first.shape[1], first.shape[0]), root)
+        self.camera, extras, self._rectifier, self.calibration_source = _resolve_camera(
+            camera, [root / "camera.yaml", root / "calib.txt"], (first.shape[1], first.shape[0]), root)
         self.frame_rate = float(fps or extras.get("fps", DEFAULT_FPS))
         if self.frame_rate <= 0:
             raise DatasetError(f"fps must be positive, got {self.frame_rate}")
@@ -72,6 +84,8 @@ class FolderDataset(Dataset):
         path = self._files[i]
         image = load_image(path)
         self._check_size(image, path)
+        if self._rectifier is not None:
+            image = self._rectifier.left(image)
         return Frame(index=i, timestamp=float(self._timestamps[i]), image=image, camera=self.camera, path=str(path))
 
 
@@ -111,7 +125,7 @@ class VideoDataset(Dataset):
         if not ok or first is None:
             raise DatasetError(f"{path}: the first video frame cannot be decoded; the file is damaged or empty")
         size = (first.shape[1], first.shape[0])
-        self.camera, extras = _resolve_camera(
+        self.camera, extras, self._rectifier, self.calibration_source = _resolve_camera(
             camera, [path.parent / "camera.yaml", path.with_suffix(".yaml")], size, path
         )
         self.frame_rate = float(fps or extras.get("fps") or (vfps if vfps > 0 else DEFAULT_FPS))
@@ -132,6 +146,8 @@ class VideoDataset(Dataset):
 
     def _frame(self, i: int, image: np.ndarray) -> Frame:
         self._check_size(image, self.path)
+        if self._rectifier is not None:
+            image = self._rectifier.left(image)
         return Frame(index=i, timestamp=float(self._timestamps[i]), image=image, camera=self.camera, path=str(self.path))
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:

@@ -173,8 +173,11 @@ class TumDataset(Dataset):
 
     # ------------------------------------------------------------------------------------------
     def _calibration(self, camera: PinholeCamera | str | Path | None) -> tuple[PinholeCamera, dict]:
+        from vslam.datasets.calibration import read_pinhole_calibration
+
         root = self.root
         if isinstance(camera, PinholeCamera):
+            self.calibration_source = "the given camera"
             return camera, {}
 
         def first_size() -> tuple[int, int]:
@@ -183,26 +186,36 @@ class TumDataset(Dataset):
 
         yaml_path = Path(camera) if camera is not None else root / "camera.yaml"
         if camera is not None or yaml_path.is_file():
+            source = camera if camera is not None else yaml_path
             try:
-                return read_camera_yaml(yaml_path)
+                cal = read_pinhole_calibration(source, reader="the TUM reader")
             except CalibrationError as exc:
-                if "lacks 'width'" not in str(exc) and "lacks 'height'" not in str(exc):
+                if "lacks 'width'" not in str(exc) and "lacks 'height'" not in str(exc) \
+                        and "has no image size" not in str(exc) and "'Camera.width'" not in str(exc):
                     raise
-                data_size = first_size()
-            return read_camera_yaml(yaml_path, data_size)
+                cal = read_pinhole_calibration(source, first_size(), reader="the TUM reader")
+            self.calibration_source = cal.describe()
+            return cal.camera, cal.extras
         preset = tum_preset_from_name(root.name)
+        named = root.name
         if preset is None and root.parent != root:
             preset = tum_preset_from_name(root.parent.name)
+            named = root.parent.name
         if preset is not None:
-            log.debug("%s: using the TUM freiburg%d calibration preset", root, preset)
+            self.calibration_source = (
+                f"TUM freiburg{preset} preset, chosen from the folder name {named!r} "
+                f"(override with --camera fr1|fr2|fr3 or a camera file)"
+            )
+            log.info("%s: using the %s", root, self.calibration_source)
             return TUM_PRESETS[preset], {"depth_scale": TUM_DEPTH_SCALE}
         for cand in sorted(root.glob("TUM*.yaml")):
             size = first_size()
+            self.calibration_source = str(cand)
             return read_camera_yaml(cand, size)
         raise CalibrationError(
             f"{root}: no calibration: the folder name names no TUM camera (freiburg1/2/3 or fr1/2/3) "
-            f"and there is no camera.yaml; add camera.yaml with fx, fy, cx, cy, width, height "
-            f"(optional dist, baseline, depth_scale, fps)"
+            f"and there is no camera.yaml; pass --camera FILE or --camera fr1|fr2|fr3, or add camera.yaml "
+            f"with fx, fy, cx, cy, width, height (optional dist, baseline, depth_scale, fps)"
         )
 
     def _gt_poses(self):

@@ -206,6 +206,7 @@ def evaluate_files(
     est_times: str | Path | None = None,
     gt_times: str | Path | None = None,
     duplicates: str = "error",
+    gt_duplicates: str | None = None,
     **overrides,
 ) -> EvalResult:
     """Read two trajectory files (format detected unless given) and :func:`evaluate_trajectories`.
@@ -213,12 +214,13 @@ def evaluate_files(
     A KITTI file without a times file has no timestamps: then both are associated by index
     (pose i with pose i; they must have the same length) unless ``by_index`` is given explicitly.
     ``duplicates="keep_last"`` accepts repeated timestamps (the official TUM fr2/desk ground truth
-    has one), keeping the last pose of each.
+    has one), keeping the last pose of each; ``gt_duplicates`` sets it for the ground truth alone
+    (default: as ``duplicates``).
     """
     est_format = est_format or detect_format(est_path)
     gt_format = gt_format or detect_format(gt_path)
     est = read_trajectory(est_path, est_format, est_times, duplicates)
-    gt = read_trajectory(gt_path, gt_format, gt_times, duplicates)
+    gt = read_trajectory(gt_path, gt_format, gt_times, gt_duplicates or duplicates)
     if "by_index" not in overrides and (config is None or not config.by_index):
         untimed = (est_format == "kitti" and est_times is None) or (gt_format == "kitti" and gt_times is None)
         if untimed:

@@ -68,7 +68,10 @@ def plot_evaluation(result: "EvalResult", path: str | Path, title: str | None = 
     ax_err.set_ylabel("ATE (m)")
     ax_err.set_ylim(bottom=0)
     ax_err.legend(loc="best", fontsize=8)
-    ax_err.set_title(f"ATE along the path ({result.matched_poses} poses, scale {result.scale:.4f})")
+    sim3 = result.alignment.mode == "sim3"
+    ax_err.set_title(f"ATE along the path ({result.matched_poses} poses, scale {result.scale:.4f}"
+                     + ("; Sim(3)-aligned, the estimate's own scale is arbitrary (monocular)" if sim3 else "") + ")",
+                     fontsize=9 if sim3 else None)
     ax_err.grid(alpha=0.3)
 
     fig.suptitle(title or f"{Path(result.names[0]).name} vs {Path(result.names[1]).name}", fontsize=10)

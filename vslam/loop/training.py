@@ -99,9 +99,13 @@ def _read_gray(path: Path, cv2) -> np.ndarray:
 
 
 def descriptors_from_sources(sources: Sequence[str | Path], every: int = 1, max_frames: int | None = None,
-                             n_features: int = 1000) -> list[np.ndarray]:
-    """One ORB descriptor array per selected training image."""
-    return [extract_orb(img, n_features) for img in iter_training_images(sources, every, max_frames)]
+                             n_features: int = 1000, progress=None) -> list[np.ndarray]:
+    """One ORB descriptor array per selected training image. ``progress``: a tqdm-like factory
+    (``progress(iterable, total=, desc=)``) wrapping the images; None shows nothing."""
+    images = iter_training_images(sources, every, max_frames)
+    if progress is not None:
+        images = progress(images, total=max_frames, desc="ORB features", unit="image")
+    return [extract_orb(img, n_features) for img in images]
 
 
 @functools.lru_cache(maxsize=None)

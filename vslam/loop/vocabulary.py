@@ -236,8 +236,8 @@ class Vocabulary:
 
     # ------------------------------------------------------------------ training
     @classmethod
-    def train(cls, descriptor_sets: Sequence[np.ndarray], config: VocabularyConfig = VocabularyConfig()
-              ) -> Vocabulary:
+    def train(cls, descriptor_sets: Sequence[np.ndarray], config: VocabularyConfig = VocabularyConfig(),
+              progress=None) -> Vocabulary:
         """Train a vocabulary from per-image descriptor arrays (sec. IV).
 
         Hierarchical k-majority clustering with k-means++ seeding builds the tree; then every
@@ -246,6 +246,9 @@ class Vocabulary:
         Args:
             descriptor_sets: one ``(N_i, D)`` uint8 array per training image.
             config: branching factor, depth, iterations, seed.
+            progress: a tqdm-like factory (``progress(total=, desc=)`` returning a bar with
+                ``update(n)`` and ``close()``); the bar counts descriptors clustered, ``levels``
+                times the descriptor count in all. None shows nothing.
         """
         sets = [np.asarray(d, dtype=np.uint8) for d in descriptor_sets if len(d)]
         if not sets:
@@ -256,7 +259,12 @@ class Vocabulary:
         all_desc = np.concatenate(sets)
         log.info("training vocabulary k=%d L=%d on %d descriptors from %d images",
                  config.k, config.levels, all_desc.shape[0], len(sets))
-        descriptors, parents = _build_tree(all_desc, config)
+        bar = progress(total=config.levels * all_desc.shape[0], desc="vocabulary", unit="desc") if progress else None
+        try:
+            descriptors, parents = _build_tree(all_desc, config, bar.update if bar is not None else None)
+        finally:
+            if bar is not None:
+                bar.close()
         weights = np.zeros(parents.shape[0])
         voc = cls(config.k, config.levels, descriptors, parents, weights, config.direct_index_level)
         image_of = np.repeat(np.arange(len(sets)), [len(d) for d in sets])
@@ -415,10 +423,11 @@ def _kmajority(descriptors: np.ndarray, k: int, max_iterations: int, rng: np.ran
     return centers[keep], np.searchsorted(keep, labels)
 
 
-def _build_tree(descriptors: np.ndarray, config: VocabularyConfig) -> tuple[np.ndarray, np.ndarray]:
+def _build_tree(descriptors: np.ndarray, config: VocabularyConfig, done=None) -> tuple[np.ndarray, np.ndarray]:
     """Hierarchical k-majority, breadth first so siblings get contiguous ids (DBoW2 HKmeansStep).
 
     A cluster is split again while its level is below ``L`` and it holds more than one descriptor.
+    ``done(n)``, when given, is called with the number of descriptors of each cluster split.
     """
     rng = np.random.default_rng(config.seed)
     node_desc = [np.zeros(descriptors.shape[1], np.uint8)]
@@ -429,6 +438,8 @@ def _build_tree(descriptors: np.ndarray, config: VocabularyConfig) -> tuple[np.n
         node, members, level = queue[head]
         head += 1
         centers, labels = _kmajority(descriptors[members], config.k, config.max_iterations, rng)
+        if done is not None:
+            done(int(members.size))
         order = np.argsort(labels, kind="stable")
         bounds = np.searchsorted(labels[order], np.arange(centers.shape[0] + 1))
         for j in range(centers.shape[0]):

@@ -345,6 +345,7 @@ def fuse_tsdf(
     stereo: StereoDepthConfig | None = None,
     point_cloud: bool = True,
     config: TSDFConfig | None = None,
+    progress=None,
 ) -> DenseResult:
     """Fuse ``frames`` at poses ``T_world_cam`` into a TSDF and extract a mesh and a point cloud.
 
@@ -356,6 +357,8 @@ def fuse_tsdf(
         camera: overrides ``frame.camera`` (e.g. a recalibrated camera); None keeps it.
         voxel_size, sdf_trunc, depth_max, depth_min, depth_source, stereo: see :class:`TSDFConfig`
             (``sdf_trunc`` None = 4 voxels); ignored when ``config`` is given.
+        progress: a tqdm-like factory (``progress(iterable, total=, desc=)``) wrapping the frames
+            (e.g. ``functools.partial(tqdm, file=sys.stderr)``); None shows nothing.
 
     Raises:
         VslamError: Open3D missing, a frame without depth/stereo, poses and frames of different length.
@@ -368,6 +371,8 @@ def fuse_tsdf(
     fusion = TSDFFusion(config)
     poses = None if T_world_cam is None else list(T_world_cam)
     n = 0
+    if progress is not None:
+        frames = progress(frames, total=len(poses) if poses is not None else None, desc="TSDF fusion", unit="frame")
     for i, frame in enumerate(frames):
         if poses is not None:
             if i >= len(poses):

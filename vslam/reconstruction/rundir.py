@@ -66,6 +66,7 @@ def reconstruct_run(
     max_frames: int | None = None,
     output_dir: str | Path | None = None,
     stereo: StereoDepthConfig | None = None,
+    progress=None,
 ) -> dict:
     """Fuse a run's keyframes (or every ``every``-th tracked frame) into ``mesh.ply`` and ``dense.ply``.
 
@@ -77,6 +78,8 @@ def reconstruct_run(
         sdf_trunc: metres; None = 4 voxels.
         max_frames: fuse at most this many frames, evenly spaced over the selection.
         output_dir: where to write the PLY files (default ``run_dir``).
+        progress: a tqdm-like factory (``progress(iterable, total=, desc=)``) to show the fusion's
+            progress with, e.g. ``functools.partial(tqdm, file=sys.stderr)``; None shows nothing.
 
     Returns:
         counts (``frames_fused``, ``vertices``, ``triangles``, ``points``), ``mesh`` and ``dense``
@@ -133,7 +136,8 @@ def reconstruct_run(
              voxel_size, depth_max)
     t0 = time.perf_counter()
     fusion = TSDFFusion(config)
-    for i, k in zip(frame_idx, pose_idx):
+    pairs = list(zip(frame_idx, pose_idx))
+    for i, k in (progress(pairs, total=len(pairs), desc="TSDF fusion", unit="frame") if progress else pairs):
         fusion.integrate_frame(ds[int(i)], traj.T_world_cam[k])
     result = fusion.extract()
     paths = result.save(Path(output_dir) if output_dir is not None else run_dir)

@@ -363,20 +363,34 @@ def plot_error(run: RunData) -> str | None:
     return _png_data_uri(fig)
 
 
-def plot_stages(stats: dict) -> str | None:
-    """Mean milliseconds per frame of every pipeline stage (PNG URI)."""
+PER_KEYFRAME_STAGES = ("local_ba",)  # stats.json's stage_ms holds these per call (per keyframe), not per frame
+
+
+def split_stage_times(stats: dict) -> tuple[dict[str, float], dict[str, float]]:
+    """``(per-frame ms, per-keyframe ms)`` of ``stats["stage_ms"]`` (``total`` left out)."""
     stage_ms = {k: float(v) for k, v in (stats.get("stage_ms") or {}).items()
                 if isinstance(v, (int, float)) and k != "total"}
-    if not stage_ms:
+    per_kf = {k: v for k, v in stage_ms.items() if k in PER_KEYFRAME_STAGES}
+    return {k: v for k, v in stage_ms.items() if k not in per_kf}, per_kf
+
+
+def plot_stages(stats: dict) -> str | None:
+    """Mean milliseconds per frame of every tracking stage, and per keyframe of the mapping stages
+    (local BA), drawn apart (PNG URI)."""
+    per_frame, per_kf = split_stage_times(stats)
+    if not per_frame and not per_kf:
         return None
-    names = sorted(stage_ms, key=stage_ms.get)
+    names = sorted(per_frame, key=per_frame.get) + sorted(per_kf, key=per_kf.get)
+    values = [per_frame.get(n, per_kf.get(n)) for n in names]
+    colors = ["#6baed6" if n in per_frame else "#fd8d3c" for n in names]
+    labels = [n if n in per_frame else f"{n} (per keyframe)" for n in names]
     fig = _figure(6.4, 0.35 * len(names) + 1.3)
     ax = fig.add_subplot(1, 1, 1)
-    ax.barh(range(len(names)), [stage_ms[n] for n in names], color="#6baed6")
-    ax.set_yticks(range(len(names)), names, fontsize=8)
-    ax.set_xlabel("mean time per frame [ms]")
+    ax.barh(range(len(names)), values, color=colors)
+    ax.set_yticks(range(len(names)), labels, fontsize=8)
+    ax.set_xlabel("mean time [ms]: per frame (blue), per keyframe (orange)")
     total = (stats.get("stage_ms") or {}).get("total")
-    ax.set_title("time per stage" + (f" (total {float(total):.1f} ms/frame)" if total is not None else ""))
+    ax.set_title("time per stage" + (f" (tracking total {float(total):.1f} ms/frame)" if total is not None else ""))
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
     return _png_data_uri(fig)
@@ -427,6 +441,9 @@ def run_body(run: RunData, title: str | None = None) -> str:
         rows.append(f"<tr><td>ATE RMSE recomputed here [m]</td><td>{ev.ate.rmse:.4f}</td></tr>")
         rows.append(f"<tr><td>ground truth</td><td>{_esc(run.gt_source)}</td></tr>")
     parts.append('<h2>Summary</h2><table id="summary">' + "".join(rows) + "</table>")
+    if s.get("sensor") == "mono":
+        parts.append('<p class="note">monocular run: the map and trajectory scale is arbitrary; the ATE is '
+                     'computed after a Sim(3) alignment (rotation, translation and scale) to the ground truth.</p>')
     if s.get("error"):
         parts.append(f'<p class="fail">the run failed: {_esc(s["error"])}</p>')
     parts.append("<h2>Trajectory</h2>")

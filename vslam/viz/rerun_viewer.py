@@ -1,9 +1,13 @@
 """Stream a SLAM run to the rerun viewer, or record it to an ``.rrd`` file (optional ``viz`` extra).
 
-``vslam run ... --viz rerun`` opens a viewer (``rerun`` spawns it), ``--viz rerun:FILE.rrd`` records
-to a file to open later with ``rerun FILE.rrd``, ``--viz rerun:rerun+http://HOST:9876/proxy``
-connects to a running viewer. Nothing here needs a display unless a viewer is spawned, and
-rerun is only imported when a viewer is created.
+``vslam run ... --viz rerun`` opens a viewer (``rerun`` spawns it; the ``rerun`` executable is
+looked for next to the running Python first, so it works from a virtual environment that is not
+activated: :func:`rerun_executable`), ``--viz rerun:FILE.rrd`` records to a file to open later
+with ``rerun FILE.rrd``, ``--viz rerun:rerun+http://HOST:9876/proxy`` connects to a running
+viewer. Nothing here needs a display unless a viewer is spawned, and rerun is only imported when
+a viewer is created. Smaller recordings: ``image_scale`` (``--viz-scale 0.5`` logs images at half
+size) and ``image_every`` (``--viz-every N`` logs the image, features and depth of every N-th
+frame only; poses, trajectory and map are logged for every frame).
 
 What is logged per frame (timelines ``frame`` = frame index and ``time`` = timestamp in s):
 
@@ -25,6 +29,9 @@ Example::
 from __future__ import annotations
 
 import logging
+import os
+import shutil
+import sys
 from pathlib import Path
 from typing import Any, Callable
 
@@ -41,6 +48,17 @@ def _import_rerun():
     except ImportError:
         raise VslamError("--viz rerun needs the rerun SDK: pip install 'vslam[viz]' (rerun-sdk==0.41.0)") from None
     return rr
+
+
+def rerun_executable() -> str | None:
+    """The ``rerun`` viewer executable: beside ``sys.executable`` (a virtual environment's
+    ``bin/`` or ``Scripts/``, found even when it is not activated), else on ``PATH``, else None."""
+    here = Path(sys.executable).parent
+    for name in ("rerun", "rerun.exe"):
+        cand = here / name
+        if cand.is_file() and os.access(cand, os.X_OK):
+            return str(cand)
+    return shutil.which("rerun")
 
 
 def map_points_of(system: Any) -> np.ndarray | None:
@@ -91,12 +109,17 @@ class RerunViewer:
         map_every: log the map points every N frames (and on every keyframe).
         log_depth: also log RGB-D depth images.
         jpeg_quality: JPEG-compress the images (smaller recordings, 1-100), None for raw pixels.
+        image_every: log the image (features, depth) of every N-th frame only (smaller recordings).
     """
 
     def __init__(self, target: str | Path = "spawn", app_id: str = "vslam", system: Any = None,
                  image_scale: float = 1.0, map_every: int = 10, log_depth: bool = True,
-                 jpeg_quality: int | None = 85) -> None:
+                 jpeg_quality: int | None = 85, image_every: int = 1) -> None:
         rr = _import_rerun()
+        if not image_scale >= 1.0:
+            raise VslamError(f"image scale {1.0 / image_scale:g}: images can only be shrunk (--viz-scale in (0, 1])")
+        if int(image_every) < 1:
+            raise VslamError(f"--viz-every {image_every}: log every N-th image, N >= 1")
         self._rr = rr
         self.rec = rr.RecordingStream(app_id)
         self.system = system
@@ -104,13 +127,19 @@ class RerunViewer:
         self.map_every = max(1, int(map_every))
         self.log_depth = log_depth
         self.jpeg_quality = jpeg_quality
+        self.image_every = int(image_every)
+        self.images_logged = 0
         self.positions: list[np.ndarray] = []
         self._camera_logged = False
         self._last_state: str | None = None
         self._n = 0
         target = str(target)
         if target == "spawn":
-            self.rec.spawn()
+            exe = rerun_executable()
+            if exe is None:
+                raise VslamError("--viz rerun: the rerun viewer executable was not found (next to "
+                                 f"{sys.executable} or on PATH); record with --viz rerun:FILE.rrd and open it later")
+            rr.spawn(executable_path=exe, recording=self.rec)
         elif target.startswith("rerun+http") or target.startswith("rerun+https"):
             self.rec.connect_grpc(target)
         else:
@@ -167,7 +196,8 @@ class RerunViewer:
         rec.set_time("frame", sequence=int(frame.index))
         rec.set_time("time", duration=float(frame.timestamp))
         image = getattr(frame, "image", None)
-        if image is not None:
+        if image is not None and (self._n - 1) % self.image_every == 0:
+            self.images_logged += 1
             img = self._scaled(image)
             if not self._camera_logged and getattr(frame, "camera", None) is not None:
                 self._log_camera(frame.camera, img.shape)
