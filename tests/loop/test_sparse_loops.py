@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.config import Config, load_config
 from vslam.geometry.camera import PinholeCamera
 from vslam.loop.verification import Features, verify
 from vslam.map.mappoint import MapPointStore
-from vslam.system import System
 
 
 def _scene(seed: int = 0):
