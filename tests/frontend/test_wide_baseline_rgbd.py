@@ -6,7 +6,6 @@ and starting new map segments (before these fallbacks: 44/58 frames in 8 segment
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from vslam.eval.evaluate import evaluate_trajectories
 
