@@ -119,3 +119,22 @@ def test_rpe_pairs_bad_delta():
     with pytest.raises(TrajectoryError, match="unknown RPE delta unit"):
         rpe_pairs(T, 1, "deg")
     assert len(rpe_pairs(T, 100, "m")) == 0
+
+
+@pytest.mark.parametrize("mode", ["se3", "sim3"])
+def test_alignment_of_a_planar_trajectory_is_a_rotation(mode):
+    # a ground-plane trajectory (z = 0): the positions are coplanar, and an alignment without
+    # Umeyama's reflection guard comes out mirrored for about half of the rotations
+    n = 60
+    t = np.linspace(0, 2 * np.pi, n)
+    T_gt = np.tile(np.eye(4), (n, 1, 1))
+    T_gt[:, :3, 3] = np.stack([4 * np.cos(t), 2.5 * np.sin(2 * t), np.zeros(n)], axis=1)
+    T_gt[:, :3, :3] = Rotation.from_rotvec(np.outer(t, [0, 0, 1])).as_matrix()
+    s = 0.6 if mode == "sim3" else 1.0
+    for k in range(12):
+        R = Rotation.from_rotvec(np.random.default_rng(k).normal(size=3)).as_matrix()
+        T_est = sim3(T_gt, R.T, -R.T @ np.array([0.5, 1.0, -1.5]) / s, 1 / s)
+        a = align(T_est, T_gt, mode)
+        assert np.linalg.det(a.R) == pytest.approx(1.0, abs=1e-9), k
+        np.testing.assert_allclose(a.R, R, atol=1e-9)
+        assert ate_errors(a.apply(T_est), T_gt).max() < 1e-9

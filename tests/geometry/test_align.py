@@ -66,3 +66,44 @@ def test_align_degenerate_raises():
         align_points(src, bad)
     with pytest.raises(GeometryError, match="equal shape"):
         align_points(src, dst[:5])
+
+
+def _planar_points(seed: int, n: int = 40) -> np.ndarray:
+    """Points on the plane z = 0 (a ground-vehicle or table-top trajectory): the cross-covariance
+    has rank 2, so the sign of its third singular direction is arbitrary and only the reflection
+    guard ``S = diag(1, 1, det(U V^T))`` keeps ``R`` a rotation."""
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-5, 5, (n, 2)), np.zeros(n)]
+
+
+@pytest.mark.parametrize("with_scale", [False, True])
+def test_umeyama_never_returns_a_reflection_for_coplanar_points(with_scale):
+    # unguarded, about half of these come out mirrored (det R = -1) with the same residual
+    for seed in range(16):
+        src = _planar_points(seed)
+        R_true = so3_exp(np.random.default_rng(100 + seed).normal(size=3))
+        t_true = np.array([1.0, -2.0, 0.5])
+        s_true = 1.4 if with_scale else 1.0
+        dst = s_true * src @ R_true.T + t_true
+        R, t, s = umeyama(src, dst, with_scale)
+        assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-9), seed
+        np.testing.assert_allclose(R, R_true, atol=1e-9)
+        np.testing.assert_allclose(t, t_true, atol=1e-9)
+        assert s == pytest.approx(s_true, rel=1e-9)
+        # evo (which has the guard) agrees on the planar case too
+        from evo.core.geometry import umeyama_alignment
+
+        R_e, t_e, s_e = umeyama_alignment(src.T, dst.T, with_scale)
+        np.testing.assert_allclose(R, R_e, atol=1e-9)
+
+
+def test_umeyama_batch_never_returns_a_reflection_for_coplanar_points():
+    from vslam.geometry import umeyama_batch
+
+    src = np.stack([_planar_points(s, n=3) for s in range(32)])
+    R_true = so3_exp(np.random.default_rng(7).normal(size=(32, 3)))
+    dst = np.einsum("mij,mkj->mki", R_true, src)
+    R, _, _, valid = umeyama_batch(src, dst)
+    assert valid.all()
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-9)
+    np.testing.assert_allclose(R, R_true, atol=1e-8)

@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vslam.geometry.align import align_ransac, kabsch_batch
 from vslam.geometry.epipolar import essential_pose
-from vslam.geometry.lie import inv_se3, se3_exp
+from vslam.geometry.lie import inv_se3, se3_exp, se3_log
 from vslam.geometry.pnp import refine_pose
 from vslam.geometry.triangulation import ray_parallax_deg, triangulate_dlt
 
@@ -30,6 +31,27 @@ def test_refine_pose_converges_and_rejects_outliers():
         T_est, inl = refine_pose(T0, X, uv_noisy, K, None, u_right, 40.0)
         assert inl[:30].sum() == 0 and inl[30:].mean() > 0.95
         assert np.abs(inv_se3(T_est)[:3, 3] - inv_se3(T)[:3, 3]).max() < 5e-3
+
+
+@pytest.mark.parametrize("bf", [0.0, 40.0, 386.0])  # mono; RGB-D virtual (fx 500 x 0.08 m); KITTI-like stereo
+def test_refine_pose_jacobian_gives_a_quadratic_gauss_newton_step(bf):
+    """A check of the analytic Jacobian (u, v and the right-camera row ``u_r = u - bf / z``):
+    on noise-free data, one Gauss-Newton step from a pose 1.7e-3 off lands within O(1.7e-3^2),
+    measured 5.7e-7-7.0e-7. A wrong Jacobian still descends (the residual is right, so the
+    iterations converge and the tracker's ATE barely moves) but only linearly: a sign error
+    in ``d(u_r)/dz`` leaves 3.8e-5 (bf 40) and 4.2e-4 (bf 386) after the step."""
+    rng = np.random.default_rng(0)
+    X = rng.uniform([-2, -2, 2], [2, 2, 6], (200, 3))
+    T = se3_exp(np.array([0.1, -0.05, 0.2, 0.05, 0.1, -0.03]))
+    uv, z = _project(T, X)
+    u_right = uv[:, 0] - bf / z if bf > 0 else None
+    T0 = se3_exp(1e-3 * np.array([1.0, -0.7, 0.5, 0.6, -0.4, 0.8])) @ T
+    T1, inl = refine_pose(T0, X, uv, K, None, u_right, bf, rounds=1, iterations=1)
+    assert inl.all()
+    e0 = np.linalg.norm(se3_log(T0 @ inv_se3(T)))
+    e1 = np.linalg.norm(se3_log(T1 @ inv_se3(T)))
+    assert e0 == pytest.approx(1.7e-3, rel=0.01)
+    assert e1 < 2e-6, e1
 
 
 def test_align_ransac_recovers_rigid_motion():

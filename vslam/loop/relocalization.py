@@ -71,7 +71,7 @@ class Relocalizer:
 
     def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, vocabulary: Vocabulary,
                  database: KeyframeDatabase | None = None, config: RelocalizationConfig | None = None,
-                 scale_factor: float = 1.2, bf: float = 0.0) -> None:
+                 scale_factor: float = 1.2, bf: float = 0.0, refine_ransac: bool = False) -> None:
         self.map = map_
         self.camera = camera
         self.sensor = sensor
@@ -80,6 +80,9 @@ class Relocalizer:
         self.config = config or RelocalizationConfig()
         self.scale_factor = float(scale_factor)
         self.bf = float(bf)
+        # refine the 3D-3D RANSAC pose on reprojection before the guided matching (``refine_ransac``
+        # of :func:`vslam.loop.verification.verify`, as the loop closer does); off in SLAM tracking
+        self.refine_ransac = bool(refine_ransac)
         self.attempts = 0
         self.successes = 0
 
@@ -139,7 +142,8 @@ class Relocalizer:
         return verify(feat, self.map.points, pts, self.camera, self.sensor, ratio=cfg.match_ratio,
                       max_distance=cfg.max_descriptor_distance, min_matches=min_matches,
                       search_radius_px=cfg.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                      pnp_reproj_px=cfg.reproj_px, seed=seed, extra_X=extra_X, extra_desc=extra_desc)
+                      pnp_reproj_px=cfg.reproj_px, seed=seed, extra_X=extra_X, extra_desc=extra_desc,
+                      refine_ransac=self.refine_ransac)
 
     def __call__(self, obs: Any, segment: int | None = None) -> Relocalization | None:
         """Relocalize a frame given its keypoints ``obs`` (attributes ``uv_undist``, ``descriptors``,
