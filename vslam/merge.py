@@ -23,7 +23,8 @@ merging (Campos et al., T-RO 2021, sec. VI-B):
    covisible window), then a global BA (A's first keyframe fixed; two for monocular) spread the seam.
 
 Outputs in ``OUT``: ``map/`` (format version 2, with the merged keyframe database), ``keyframes.txt``
-(TUM, ``T_world_cam`` in A's world, good keyframes by timestamp), ``sparse.ply``, ``topology.*``,
+(TUM, ``T_world_cam`` in A's world, good keyframes by timestamp; one per timestamp, A's first when
+overlapping inputs both made a keyframe of one frame), ``sparse.ply``, ``topology.*``,
 ``config.yaml`` (A's, so ``vslam localize OUT`` detects features as the runs did) and ``stats.json``.
 
 Example::
@@ -58,6 +59,10 @@ class MergeOptions:
         agree_m, agree_deg: two transforms agree when they place the matched B keyframes within
             ``agree_m`` metres and ``agree_deg`` degrees of each other (metric maps).
         agree_rel: monocular: ``agree_m`` relative to the extent of A's keyframe centres (scale unknown).
+        weak_inliers: a match with fewer map-point inliers than ``loop.closing.min_inliers`` (but at
+            least this many) does not vote on the alignment, but joins the seam (its points are fused)
+            when it agrees with the alignment: a second place where B revisits A, e.g. B's end closing
+            a loop onto A's start, is welded too.
         local_ba, global_ba: run the seam's local BA / the global BA.
     """
 
@@ -66,12 +71,13 @@ class MergeOptions:
     agree_m: float = 0.10
     agree_deg: float = 5.0
     agree_rel: float = 0.05
+    weak_inliers: int = 15
     local_ba: bool = True
     global_ba: bool = True
 
     def __post_init__(self) -> None:
-        if self.candidates < 1 or self.min_agreeing < 1:
-            raise ConfigError("merge: candidates and min_agreeing must be >= 1")
+        if self.candidates < 1 or self.min_agreeing < 1 or self.weak_inliers < 6:
+            raise ConfigError("merge: candidates and min_agreeing must be >= 1, weak_inliers >= 6")
         if not (self.agree_m > 0 and self.agree_deg > 0 and self.agree_rel > 0):
             raise ConfigError("merge: agree_m, agree_deg and agree_rel must be positive")
 
@@ -149,7 +155,7 @@ def find_seam(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, vocabulary,
     from vslam.loop.verification import verify
 
     cc = cfg.loop.closing
-    need = cc.min_inliers_mono if sensor == "mono" else cc.min_inliers
+    need = min(options.weak_inliers, cc.min_inliers_mono if sensor == "mono" else cc.min_inliers)
     bf = stereo_bf(camera, sensor)
     scale_factor = cfg.features.scale_factor
     matches: list[SeamMatch] = []
@@ -214,6 +220,15 @@ def agreeing_group(matches: list[SeamMatch], map_b, tolerance: float, agree_deg:
         if key > (len(best), sum(m.ver.n_inliers for m in best)):
             best = group
     return best
+
+
+def _agrees(m: SeamMatch, S: np.ndarray, map_b, tolerance: float, agree_deg: float) -> bool:
+    """Whether match ``m`` places its B keyframe within ``tolerance`` / ``agree_deg`` of where ``S`` does."""
+    T = map_b.keyframes[m.b_kf].T_world_cam
+    A = S @ T
+    B = m.S_a_b @ T
+    R = (A[:3, :3] / np.cbrt(np.linalg.det(A[:3, :3]))).T @ (B[:3, :3] / np.cbrt(np.linalg.det(B[:3, :3])))
+    return bool(np.linalg.norm(A[:3, 3] - B[:3, 3]) <= tolerance and _rot_deg(R) <= agree_deg)
 
 
 def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> np.ndarray:
@@ -297,13 +312,17 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
     centres = np.stack([k.T_world_cam[:3, 3] for k in map_a.keyframes.values()])
     extent = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) if len(centres) else 0.0
     tol = options.agree_rel * max(extent, 1e-6) if sensor == "mono" else options.agree_m
-    group = agreeing_group(matches, map_b, tol, options.agree_deg)
+    need = cfg.loop.closing.min_inliers_mono if sensor == "mono" else cfg.loop.closing.min_inliers
+    strong = [m for m in matches if m.ver.n_inliers >= need]
+    group = agreeing_group(strong, map_b, tol, options.agree_deg)
     if len(group) < options.min_agreeing:
         raise MergeError(
             f"the maps do not overlap: {len(matches)} of {len(map_b.keyframes)} keyframes of B were verified in A "
             f"and at most {len(group)} agree on one alignment ({options.min_agreeing} needed); map B must revisit "
             "a place mapped in A")
     S = estimate_transform(group, map_a, sensor)
+    ids = {m.b_kf for m in group}
+    weak = [m for m in matches if m.b_kf not in ids and _agrees(m, S, map_b, tol, options.agree_deg)]
     scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
     best = max(group, key=lambda m: m.ver.n_inliers)
     seg_a = map_a.keyframes[best.a_kf].segment
@@ -317,15 +336,15 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
             db_a.add(k + off, db_b.bow(k))
         elif kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
             db_a.add(k + off, vocabulary.transform(kf.descriptors)[0])
-    fused = _fuse_seam(map_a, group, off, camera, sensor, cfg)
+    fused = _fuse_seam(map_a, group + weak, off, camera, sensor, cfg)
     for k in sorted(map_a.keyframes):
         if k >= off and map_a.keyframes[k].segment == seg_a:
             map_a.update_covisibility(k)
     cross = sum(1 for k in map_a.keyframes if k >= off for j in map_a.covisibility.get(k, {}) if j < off)
     stats: dict[str, Any] = {
         "keyframes_a": n_a_kf, "keyframes_b": len(map_b.keyframes), "keyframes": len(map_a.keyframes),
-        "verified_b_keyframes": len(matches), "seam_keyframes": len(group),
-        "seam": [[m.b_kf + off, m.a_kf, int(m.ver.n_inliers)] for m in group],
+        "verified_b_keyframes": len(strong), "seam_keyframes": len(group), "weak_seam_keyframes": len(weak),
+        "seam": [[m.b_kf + off, m.a_kf, int(m.ver.n_inliers)] for m in group + weak],
         "S_a_b": [[round(float(x), 6) for x in row] for row in S], "scale": round(scale, 6),
         "fused_points": int(fused), "cross_links": int(cross), "place_recognition_s": round(t_pr, 2),
         "keyframe_id_offset": off, "point_id_offset": appended.point_offset,
@@ -400,6 +419,8 @@ def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config
             "seam_keyframes": result.stats["seam_keyframes"]}]
         result.stats["outputs"] = write_map_outputs(out, merged, camera=cam_A, database=result.database, metadata=meta)
         kfs = sorted((k for k in merged.keyframes.values() if not k.bad), key=lambda k: (k.timestamp, k.id))
+        # overlapping inputs may both hold a keyframe of one frame: TUM has one pose per time, A's wins
+        kfs = [k for i, k in enumerate(kfs) if i == 0 or k.timestamp != kfs[i - 1].timestamp]
         traj = Trajectory(np.array([k.timestamp for k in kfs], float), np.stack([k.T_world_cam for k in kfs]))
         with atomic_path(out / "keyframes.txt") as tmp:
             write_tum(tmp, traj)
