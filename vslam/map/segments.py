@@ -30,15 +30,20 @@ from vslam.map.map import Map
 SEGMENT_KEYS = ("segment", "source", "source_segment", "keyframe_ids", "S_segment_source")
 
 
-@dataclass
+@dataclass(eq=False)
 class SegmentRecord:
-    """One row of the segment table (see the module docstring)."""
+    """One row of the segment table (see the module docstring); equal when their JSON rows are."""
 
     segment: int
     source: str
     source_segment: int
     keyframe_ids: tuple[int, int]
     S_segment_source: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SegmentRecord) and self.to_json() == other.to_json()
+
+    __hash__ = None  # type: ignore[assignment]  # mutable
 
     @property
     def scale(self) -> float:
