@@ -37,3 +37,7 @@ class MapFormatError(VslamError):
 class OutputError(VslamError):
     """An output cannot be written: the folder is a file or not writable, the disk is full, it is
     the input folder, or another run is using it."""
+
+
+class MergeError(VslamError):
+    """Two maps cannot be merged: no place of one is recognized and verified in the other."""

@@ -17,7 +17,7 @@ from vslam.signals import exit_status, interrupt_reason, terminate_as_interrupt
 
 # Sub-command modules, in the order `vslam --help` lists them. Missing ones are skipped so the
 # command keeps working while stages are still being written.
-COMMANDS = ["demo", "run", "eval", "localize", "calibrate", "reconstruct", "vocab", "bench", "report", "config"]
+COMMANDS = ["demo", "run", "eval", "localize", "merge", "calibrate", "reconstruct", "vocab", "bench", "report", "config"]
 
 log = logging.getLogger("vslam")
 

@@ -9,11 +9,14 @@ Example:
 """
 from __future__ import annotations
 
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
 from vslam.map.keyframe import KeyFrame
+
+if TYPE_CHECKING:
+    from vslam.map.map import Map
 
 
 def new_remap(n_points: int) -> np.ndarray:
@@ -33,3 +36,23 @@ def apply_remap(keyframes: Iterable[KeyFrame], remap: np.ndarray, chain_rounds: 
     for k in keyframes:
         pid = k.point_ids
         k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+
+
+def assign_observations(slam_map: "Map", kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:
+    """Keypoints ``kp`` of ``kf`` observe the points ``pids`` (which survive): a free keypoint (no
+    point, or a dead one) takes the point; a keypoint observing another point has that point merged
+    into ``pids`` (:meth:`Map.merge_points`, recorded in ``remap``). A point ``kf`` already observes
+    through another keypoint is skipped (one observation per keyframe). Returns the points merged
+    away. (Loop closing's ``_assign`` does the same for a loop's query side.)"""
+    store = slam_map.points
+    kp, pids = np.asarray(kp, np.int64), np.asarray(pids, np.int64)
+    if len(kp) == 0:
+        return 0
+    dup_obs = np.isin(pids, kf.point_ids[kf.point_ids >= 0]) & (kf.point_ids[kp] != pids)
+    kp, pids = kp[~dup_obs], pids[~dup_obs]
+    cur = kf.point_ids[kp]
+    free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
+    kf.point_ids[kp[free]] = pids[free]
+    np.add.at(store.n_obs, pids[free], 1)
+    dup = ~free & (cur != pids)
+    return slam_map.merge_points(remap[cur[dup]], remap[pids[dup]], remap)

@@ -46,6 +46,7 @@ from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.mappoint import MapPointStore
+from vslam.map.segments import segments_from_json, segments_to_json
 
 if TYPE_CHECKING:
     from vslam.map.config import DatabaseConfig
@@ -54,7 +55,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "vslam-map"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the segment table (map.json "segments"); version 1 maps still load
+READABLE_VERSIONS = (1, 2)
 MAP_DIRNAME = "map"
 MANIFEST_FILE = "map.json"
 KEYFRAMES_FILE = "keyframes.npz"
@@ -92,7 +94,7 @@ KEYPOINT_COUNT_FIELD = "uv"  # its length is the keyframe's keypoint count N_k
 POINT_COLUMNS = ("position", "normal", "min_distance", "max_distance", "found", "visible", "n_obs",
                  "first_kf", "last_seen_kf", "alive", "color", "descriptor")
 # Map attributes handled explicitly; any other scalar attribute is saved in map.json.
-MAP_STRUCTURES = ("keyframes", "points", "covisibility")
+MAP_STRUCTURES = ("keyframes", "points", "covisibility", "segments")
 
 _KINDS = ("scalar", "stacked", "keypoint", "dict")
 _JSON_SCALARS = (bool, int, float, str, type(None))
@@ -159,6 +161,7 @@ def save_map(
             "keyframe_fields": kf_layout,
             "point_store": pt_layout,
             "map_attributes": map_attrs,
+            "segments": segments_to_json(map),
             "database": DATABASE_FILE if database is not None else None,
             "files": files,
         }
@@ -470,6 +473,8 @@ def load_map(
     slam_map.covisibility = _unpack_covisibility(root, manifest, graph_arrays)
     _check_references(root, slam_map)
     _unpack_map_attributes(root, manifest, slam_map)
+    if manifest["version"] >= 2:  # version 1 (no table): one row per segment, built by its own run
+        slam_map.segments = segments_from_json(str(root / MANIFEST_FILE), manifest.get("segments"))
 
     database = None
     if manifest.get("database"):
@@ -519,8 +524,9 @@ def _read_manifest(root: Path) -> dict:
     if manifest.get("format") != FORMAT_NAME:
         raise MapFormatError(f"{path}: format {manifest.get('format')!r} is not {FORMAT_NAME!r}")
     version = manifest.get("version")
-    if version != FORMAT_VERSION:
-        raise MapFormatError(f"{path}: unsupported version {version} (this build reads version {FORMAT_VERSION})")
+    if version not in READABLE_VERSIONS:
+        raise MapFormatError(f"{path}: unsupported version {version} (this build reads versions "
+                             f"{' and '.join(str(v) for v in READABLE_VERSIONS)})")
     for key in ("counts", "keyframe_fields", "point_store", "map_attributes", "files"):
         if not isinstance(manifest.get(key), dict):
             raise MapFormatError(f"{path}: missing or malformed {key!r}")

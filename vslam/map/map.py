@@ -26,6 +26,8 @@ class Map:
         # incremented by loop closing each time it moves the map (pose graph, fusion): an optimization
         # whose problem was snapshot before (realtime mode) must drop its now stale result
         self.loop_epoch = 0
+        # provenance of the segments (vslam.map.segments.SegmentRecord rows); empty: one run's own
+        self.segments: list = []
 
     # ------------------------------------------------------------------ keyframes
     def next_keyframe_id(self) -> int:

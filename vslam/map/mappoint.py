@@ -153,6 +153,36 @@ class MapPointStore:
         self._n += n
         return ids
 
+    def append_store(self, other: "MapPointStore", S_this_other: np.ndarray | None = None,
+                     keyframe_id_offset: int = 0) -> int:
+        """Append every row of ``other`` (alive or not), mapped by the similarity ``S_this_other``
+        (``[s R, t; 0, 1]``: ``X' = s R X + t``, normals rotated, distance ranges scaled by ``s``) and with
+        its keyframe ids shifted by ``keyframe_id_offset``. Returns the id offset of the appended rows
+        (``other``'s point ``i`` is ``offset + i`` here). Descriptor columns must agree (both or neither)."""
+        if (self.descriptor is None) != (other.descriptor is None) and len(self) and len(other):
+            raise ValueError("cannot append map points with descriptors to a store without (or vice versa)")
+        S = np.eye(4) if S_this_other is None else np.asarray(S_this_other, dtype=float)
+        s = float(np.cbrt(np.linalg.det(S[:3, :3])))
+        R = S[:3, :3] / s
+        n, offset = len(other), self._n
+        self._grow(offset + n)
+        rows = slice(offset, offset + n)
+        self.position[rows] = other.position[:n] @ S[:3, :3].T + S[:3, 3]
+        self.normal[rows] = other.normal[:n] @ R.T
+        self.min_distance[rows] = s * other.min_distance[:n]
+        self.max_distance[rows] = s * other.max_distance[:n]
+        for name in ("found", "visible", "n_obs", "alive", "color"):
+            getattr(self, name)[rows] = getattr(other, name)[:n]
+        for name in ("first_kf", "last_seen_kf"):
+            ids = getattr(other, name)[:n]
+            getattr(self, name)[rows] = np.where(ids >= 0, ids + keyframe_id_offset, ids)
+        if other.descriptor is not None:
+            if self.descriptor is None:
+                self.descriptor = np.zeros((self._cap,) + other.descriptor.shape[1:], dtype=other.descriptor.dtype)
+            self.descriptor[rows] = other.descriptor[:n]
+        self._n += n
+        return offset
+
     def record(self, visible_ids: np.ndarray, found_ids: np.ndarray) -> None:
         """Count the frames in whose frustum the points were (``visible``) and matched (``found``)."""
         _count(self.visible, visible_ids)
