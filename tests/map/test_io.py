@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 import vslam.map.io as mio
+import vslam.map.io_pack as io_pack
+import vslam.map.io_unpack as io_unpack
 from vslam.errors import MapFormatError
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.io import load_map, save_map
@@ -144,8 +146,9 @@ def test_unknown_keyframe_field_is_saved_generically(tmp_path: Path, monkeypatch
                         intrinsics_scale=np.full((2, 2), kf.id, np.float32))
         m2.keyframes[kf.id] = v2
     m2.points, m2.covisibility, m2._next_kf_id = m.points, m.covisibility, m._next_kf_id
-    monkeypatch.setattr(mio, "KeyFrame", KeyFrameV2)
-    with caplog.at_level(logging.WARNING, logger="vslam.map.io"):
+    monkeypatch.setattr(io_pack, "KeyFrame", KeyFrameV2)
+    monkeypatch.setattr(io_unpack, "KeyFrame", KeyFrameV2)
+    with caplog.at_level(logging.WARNING, logger="vslam.map.io_pack"):
         save_map(m2, tmp_path)
     assert "quality" in caplog.text and "intrinsics_scale" in caplog.text
     layout = json.loads((tmp_path / "map/map.json").read_text())["keyframe_fields"]
@@ -153,7 +156,7 @@ def test_unknown_keyframe_field_is_saved_generically(tmp_path: Path, monkeypatch
     back, *_ = load_map(tmp_path)
     assert_maps_equal(m2, back)
     # a build whose KeyFrame lacks the new fields refuses the map instead of dropping them
-    monkeypatch.setattr(mio, "KeyFrame", KeyFrame)
+    monkeypatch.setattr(io_unpack, "KeyFrame", KeyFrame)
     with pytest.raises(MapFormatError, match=r"keyframe fields \['quality', 'descriptor_mask', 'intrinsics_scale'\] "
                                              r"are unknown to this build"):
         load_map(tmp_path)
