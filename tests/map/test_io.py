@@ -115,10 +115,10 @@ def test_format_covers_every_field() -> None:
     then add it to KEYFRAME_FIELD_KINDS / POINT_COLUMNS and FORMAT.md (and bump the version if old
     maps cannot be read any more)."""
     kf_fields = [f.name for f in dataclasses.fields(KeyFrame)]
-    assert set(kf_fields) == set(mio.KEYFRAME_FIELD_KINDS), "KeyFrame fields changed: update vslam/map/io.py"
+    assert set(kf_fields) == set(mio.KEYFRAME_FIELD_KINDS), "KeyFrame fields changed: update vslam/map/io_format.py"
     store = MapPointStore()
     columns = [k for k, v in vars(store).items() if isinstance(v, np.ndarray) or v is None]
-    assert set(columns) == set(mio.POINT_COLUMNS), "MapPointStore columns changed: update vslam/map/io.py"
+    assert set(columns) == set(mio.POINT_COLUMNS), "MapPointStore columns changed: update vslam/map/io_format.py"
     others = [k for k in vars(store) if k not in columns]
     assert set(others) == {"_n", "_cap"}
     # loop_epoch: a runtime counter (realtime stale-result check), deliberately not saved

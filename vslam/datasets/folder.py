@@ -2,7 +2,7 @@
 
 The camera comes from the ``camera`` argument (a :class:`PinholeCamera` or a YAML path), else
 ``camera.yaml`` beside the images (in the folder; for a video, in its folder or ``<video>.yaml``);
-see :func:`vslam.datasets.base.read_camera_yaml` (``width``/``height`` may be omitted: the first
+see :func:`vslam.datasets.calibration.read_camera_yaml` (``width``/``height`` may be omitted: the first
 image's size is used). Timestamps are ``index / fps``; ``fps`` from the argument, the YAML, the
 video, or 30. Images are sorted by name with numbers compared numerically. No ground truth.
 """

@@ -6,7 +6,7 @@ optionally ``associate.txt`` (``t_rgb rgb t_depth depth``), which is used when p
 rgb and depth are matched like TUM's ``associate.py`` (max difference 0.02 s).
 
 Calibration, in order: the ``camera`` argument; ``camera.yaml`` in the sequence folder (see
-:func:`vslam.datasets.base.read_camera_yaml`); the freiburg1/2/3 preset chosen from the folder
+:func:`vslam.datasets.calibration.read_camera_yaml`); the freiburg1/2/3 preset chosen from the folder
 name (``freiburg1``/``fr1`` ...); an ORB-SLAM style ``TUM*.yaml`` in the folder. Otherwise
 :class:`CalibrationError`.
 

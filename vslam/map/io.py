@@ -13,8 +13,8 @@ Arrays are uncompressed ``.npz`` read back with ``allow_pickle=False``; every fi
 SHA-256 are in ``map.json``. The layout follows the classes generically: every
 ``dataclasses.fields(KeyFrame)`` field and every array column of ``MapPointStore`` is saved, so a
 field added later is saved too (its storage kind is inferred from its values and recorded in
-``map.json``). ``KEYFRAME_FIELD_KINDS`` / ``POINT_COLUMNS`` list the documented ones; a test fails
-when the classes grow a field that is not documented there.
+``map.json``). ``KEYFRAME_FIELD_KINDS`` / ``POINT_COLUMNS`` (in :mod:`vslam.map.io_format`) list the
+documented ones; a test fails when the classes grow a field that is not documented there.
 
 The directory is written to a temporary sibling, flushed, and renamed into place, so an
 interrupted save never leaves a half-written ``DIR/map``.

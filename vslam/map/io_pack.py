@@ -82,7 +82,7 @@ def _infer_kind(name: str, values: list, n_kp: np.ndarray) -> str:
     else:
         raise MapFormatError(
             f"cannot save KeyFrame.{name}: values of type {sorted({type(v).__name__ for v in values})} are not "
-            "supported by map format 1 (use numbers, strings, NumPy arrays or dicts); update vslam/map/io.py"
+            "supported by map format 1 (use numbers, strings, NumPy arrays or dicts); update vslam/map/io_format.py"
         )
     log.warning("KeyFrame.%s is not documented in map format %d; saving it as %r (update KEYFRAME_FIELD_KINDS "
                 "and FORMAT.md)", name, FORMAT_VERSION, kind)
@@ -150,7 +150,7 @@ def pack_points(store: MapPointStore) -> tuple[dict[str, np.ndarray], dict]:
         elif isinstance(value, JSON_SCALARS) or isinstance(value, np.integer):
             scalars[name] = value.item() if isinstance(value, np.generic) else value
         else:
-            raise MapFormatError(f"cannot save MapPointStore.{name} of type {type(value).__name__}; update vslam/map/io.py")
+            raise MapFormatError(f"cannot save MapPointStore.{name} of type {type(value).__name__}; update vslam/map/io_format.py")
     for name in arrays:
         rows = vars(store)[name].shape[0]
         if rows != cap:
