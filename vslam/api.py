@@ -62,7 +62,7 @@ def _refuse_calibration_as_config(path: Path) -> None:
     if not path.is_file() or path.suffix.lower() not in (".yaml", ".yml"):
         return
     try:
-        from vslam.datasets.base import _load_yaml
+        from vslam.datasets.camera_yaml import load_yaml as _load_yaml
 
         data = _load_yaml(path)
     except DatasetError:
@@ -207,6 +207,12 @@ def run_path(
     finally:
         if viewer is not None:
             viewer.close()
+    return _extra_outputs(result, output, trajectory_format, dense, progress)
+
+
+def _extra_outputs(result, output: str | Path | None, trajectory_format: str, dense: bool, progress: bool):
+    """After a run: the trajectory in another format (``--trajectory-format``) and the TSDF mesh
+    (``--dense``), recorded in the run's stats."""
     if trajectory_format != "tum" and output is not None and len(result.trajectory):
         result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
     if dense and output is not None:

@@ -161,10 +161,10 @@ def test_slow_tracker_drops_frames_in_the_run_stats(monkeypatch, camera_yaml, tm
     """The same camera at 30 fps with a tracker slowed to >= 50 ms a frame (a slow viewer): about
     one frame in two or three reaches it, the rest are counted in stats.json; the poses it made
     still fit (ATE measured 0.01-0.04 m; larger frame gaps under CPU load)."""
-    _fake(monkeypatch, fps=30.0)
+    _fake(monkeypatch, fps=15.0)  # a slow consumer (150 ms a frame), with time to track on a loaded machine
     out = tmp_path / "slow"
     run_live("camera:0", out, camera=camera_yaml, options={"clock": "index", "fps": CFG.fps},
-             on_frame=lambda frame, result: time.sleep(0.05))
+             on_frame=lambda frame, result: time.sleep(0.15))
     s = json.loads((out / "stats.json").read_text())
     assert s["captured_frames"] == N and s["frames"] + s["dropped_frames"] == N
     assert 6 <= s["frames"] <= 22 and s["dropped_frames"] >= 18
@@ -176,7 +176,7 @@ def test_slow_tracker_drops_frames_in_the_run_stats(monkeypatch, camera_yaml, tm
 def test_ctrl_c_ends_the_run_with_all_outputs(monkeypatch, camera_yaml, tmp_path, capsys):
     """SIGINT (Ctrl-C) after 25 frames of an endless camera, recorded with --viz: `vslam run` exits
     0 with stats, trajectory, keyframes, map and the .rrd; the SIGINT handler is the previous one again."""
-    _fake(monkeypatch, fps=30.0, end="sigint", sigint_after=25)
+    _fake(monkeypatch, fps=10.0, end="sigint", sigint_after=25)  # slow enough to keep up on a loaded CI machine
     before = signal.getsignal(signal.SIGINT)
     out = tmp_path / "live"
     pytest.importorskip("rerun")

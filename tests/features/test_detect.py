@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from vslam.errors import ConfigError, VslamError
-from vslam.features import FeatureConfig, Features, create_detector, grid_select
-from vslam.features.detect import _Orientation, level_quotas
+from vslam.features import FeatureConfig, Features, create_detector
 
 
 def cell_coverage(uv: np.ndarray, shape: tuple[int, int], cell: int, margin: int) -> float:
@@ -58,16 +57,6 @@ def test_orb_on_kitti_frame(shared_data):
     assert (feats.uv[:, 1] >= 0).all() and (feats.uv[:, 1] < gray.shape[0]).all()
 
 
-def test_orientation_matches_opencv_orb(astronaut):
-    """The vectorized intensity-centroid angle equals cv2.ORB's on its own level-0 keypoints."""
-    kps = [k for k in cv2.ORB_create(1000).detect(astronaut) if k.octave == 0]
-    uv = cv2.KeyPoint_convert(kps).astype(np.int64)
-    ref = np.array([k.angle for k in kps])
-    ours = _Orientation(31)(astronaut, uv[:, 0], uv[:, 1])
-    diff = np.abs((ours - ref + 180.0) % 360.0 - 180.0)
-    assert len(kps) > 100 and diff.max() < 0.05
-
-
 def test_descriptors_are_rotation_invariant(brick):
     """A 90-degree rotation keeps the descriptors: same corners match with small distances."""
     det = create_detector(FeatureConfig(n_features=800))
@@ -102,18 +91,6 @@ def test_other_detectors(astronaut, name, binary, dim):
     assert feats.descriptors.shape == (len(feats), dim)
     assert feats.descriptors.dtype == (np.uint8 if binary else np.float32)
     assert (feats.octave >= 0).all() and len(feats.angle) == len(feats.response) == len(feats.size) == len(feats)
-
-
-def test_grid_select_round_robin():
-    uv = np.array([[1, 1], [2, 2], [3, 3], [50, 50], [51, 51]], np.float32)
-    score = np.array([5.0, 9.0, 1.0, 3.0, 2.0])
-    # round 1: best of each cell (idx 1 then 3), round 2: second best (0 then 4)
-    np.testing.assert_array_equal(grid_select(uv, score, 10, 4), [1, 3, 0, 4])
-
-
-def test_level_quotas_sum():
-    q = level_quotas(2000, 8, 1.2)
-    assert q.sum() == 2000 and (np.diff(q) <= 0).all()
 
 
 def test_bad_inputs():
@@ -160,27 +137,3 @@ def test_descriptors_equal_opencv_multilevel_orb(astronaut):
     ids = np.array([k.class_id for k in out])
     assert len(ids) == len(feats) and (feats.octave > 0).sum() > 300
     np.testing.assert_array_equal(desc, feats.descriptors[ids])
-
-
-def test_survivors_finds_the_kept_keypoints_in_order():
-    """cv2.ORB.compute may drop keypoints (order-preserving); their input indices are recovered
-    from the positions, duplicates included."""
-    from vslam.features.detect import _keypoints, _survivors
-
-    rng = np.random.default_rng(4)
-    x = rng.integers(0, 100, 50).astype(np.float64)
-    y = rng.integers(0, 80, 50).astype(np.float64)
-    x[7], y[7] = x[6], y[6]  # a duplicated position
-    kps = _keypoints(x, y, rng.uniform(0, 360, 50), 31.0)
-    np.testing.assert_array_equal(_survivors(kps, x, y), np.arange(50))
-    keep = np.sort(rng.choice(50, 30, replace=False))
-    keep = np.union1d(keep, [6, 7])
-    out = [kps[i] for i in keep]
-    np.testing.assert_array_equal(_survivors(out, x, y), keep)
-    # through describe_orb: points near the border are dropped, the rest keep their input order
-    img = cv2.GaussianBlur(rng.integers(0, 256, (120, 160), dtype=np.uint8), (5, 5), 1.0)
-    from vslam.features.detect import describe_orb
-
-    uv = np.array([[5, 5], [60, 50], [80, 60], [155, 100], [100, 70]], np.float32)
-    feats = describe_orb(img, uv)
-    np.testing.assert_array_equal(feats.uv, uv[[1, 2, 4]])

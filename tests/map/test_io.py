@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 import vslam.map.io as mio
+import vslam.map.io_pack as io_pack
+import vslam.map.io_unpack as io_unpack
 from vslam.errors import MapFormatError
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.io import load_map, save_map
@@ -113,10 +115,10 @@ def test_format_covers_every_field() -> None:
     then add it to KEYFRAME_FIELD_KINDS / POINT_COLUMNS and FORMAT.md (and bump the version if old
     maps cannot be read any more)."""
     kf_fields = [f.name for f in dataclasses.fields(KeyFrame)]
-    assert set(kf_fields) == set(mio.KEYFRAME_FIELD_KINDS), "KeyFrame fields changed: update vslam/map/io.py"
+    assert set(kf_fields) == set(mio.KEYFRAME_FIELD_KINDS), "KeyFrame fields changed: update vslam/map/io_format.py"
     store = MapPointStore()
     columns = [k for k, v in vars(store).items() if isinstance(v, np.ndarray) or v is None]
-    assert set(columns) == set(mio.POINT_COLUMNS), "MapPointStore columns changed: update vslam/map/io.py"
+    assert set(columns) == set(mio.POINT_COLUMNS), "MapPointStore columns changed: update vslam/map/io_format.py"
     others = [k for k in vars(store) if k not in columns]
     assert set(others) == {"_n", "_cap"}
     # loop_epoch: a runtime counter (realtime stale-result check), deliberately not saved
@@ -144,8 +146,9 @@ def test_unknown_keyframe_field_is_saved_generically(tmp_path: Path, monkeypatch
                         intrinsics_scale=np.full((2, 2), kf.id, np.float32))
         m2.keyframes[kf.id] = v2
     m2.points, m2.covisibility, m2._next_kf_id = m.points, m.covisibility, m._next_kf_id
-    monkeypatch.setattr(mio, "KeyFrame", KeyFrameV2)
-    with caplog.at_level(logging.WARNING, logger="vslam.map.io"):
+    monkeypatch.setattr(io_pack, "KeyFrame", KeyFrameV2)
+    monkeypatch.setattr(io_unpack, "KeyFrame", KeyFrameV2)
+    with caplog.at_level(logging.WARNING, logger="vslam.map.io_pack"):
         save_map(m2, tmp_path)
     assert "quality" in caplog.text and "intrinsics_scale" in caplog.text
     layout = json.loads((tmp_path / "map/map.json").read_text())["keyframe_fields"]
@@ -153,7 +156,7 @@ def test_unknown_keyframe_field_is_saved_generically(tmp_path: Path, monkeypatch
     back, *_ = load_map(tmp_path)
     assert_maps_equal(m2, back)
     # a build whose KeyFrame lacks the new fields refuses the map instead of dropping them
-    monkeypatch.setattr(mio, "KeyFrame", KeyFrame)
+    monkeypatch.setattr(io_unpack, "KeyFrame", KeyFrame)
     with pytest.raises(MapFormatError, match=r"keyframe fields \['quality', 'descriptor_mask', 'intrinsics_scale'\] "
                                              r"are unknown to this build"):
         load_map(tmp_path)

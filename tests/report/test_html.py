@@ -10,7 +10,8 @@ import pytest
 
 from vslam.bench.fake import fake_run
 from vslam.errors import VslamError
-from vslam.report.html import load_run, loop_positions, write_report
+from vslam.report.html import write_report
+from vslam.report.run_data import load_run, loop_positions
 
 IMG_RE = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
 

@@ -28,12 +28,12 @@ import numpy as np
 
 from vslam.datasets.base import (
     Dataset,
-    _load_yaml,
     interpolate_poses,
     load_image,
     require_dir,
     require_file,
 )
+from vslam.datasets.camera_yaml import load_yaml
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
 from vslam.textfile import open_text
@@ -48,7 +48,7 @@ def read_euroc_sensor(path: str | Path) -> tuple[PinholeCamera, np.ndarray, floa
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"{path}: EuRoC camera sensor.yaml not found")
-    data = _load_yaml(path)
+    data = load_yaml(path)
     try:
         fu, fv, cu, cv = (float(v) for v in data["intrinsics"])
         w, h = (int(v) for v in data["resolution"])

@@ -327,8 +327,6 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     """
     import multiprocessing
 
-    from vslam.errors import DatasetError
-
     head = max(0, min(int(head), len(source)))
     rest = FrameRange(source.dataset, source.start + head, source.stop)
     if len(rest) == 0:
@@ -344,6 +342,30 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     proc = ctx.Process(target=_child_main, args=(rest, work, q, stop, waiting, slots), name="vslam-prefetch",
                        daemon=True)
     # start() blocks until the child has read its arguments: in a thread, while the head is read here
+    starter, start_error = _start_in_thread(proc)
+    try:
+        if head:
+            for frame in source.dataset.frames(source.start, rest.start):
+                yield frame, None, 0.0
+        starter.join()
+        if start_error:
+            raise start_error[0]
+        while True:
+            msg = _receive(q, proc, waiting)
+            if slots is not None:
+                msg = slots.unpack(msg)
+            if msg[0] == "end":
+                return
+            if msg[0] == "raise":
+                raise msg[1]
+            yield msg[1], msg[2], msg[3]
+    finally:
+        _shut_down(proc, starter, q, stop, slots)
+
+
+def _start_in_thread(proc) -> tuple[threading.Thread, list[BaseException]]:
+    """Start ``proc`` in a thread (``start()`` blocks until the child has read its arguments);
+    returns the thread and the list that receives a start error, for the consumer to re-raise."""
     start_error: list[BaseException] = []
 
     def start() -> None:
@@ -354,48 +376,48 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
 
     starter = threading.Thread(target=start, name="vslam-prefetch-start", daemon=True)
     starter.start()
-    try:
-        if head:
-            for frame in source.dataset.frames(source.start, rest.start):
-                yield frame, None, 0.0
-        starter.join()
-        if start_error:
-            raise start_error[0]
-        while True:
-            if waiting is not None and q.empty():
-                waiting.value = 1
+    return starter, start_error
+
+
+def _receive(q, proc, waiting) -> tuple:
+    """The child's next message; the shared ``waiting`` flag is set while the queue is empty.
+
+    Raises:
+        DatasetError: the process exited without a last message (e.g. killed for memory).
+    """
+    from vslam.errors import DatasetError
+
+    while True:
+        if waiting is not None and q.empty():
+            waiting.value = 1
+        try:
+            msg = q.get(timeout=0.5)
+        except queue.Empty:
+            if proc.is_alive():
+                continue
             try:
-                msg = q.get(timeout=0.5)
+                msg = q.get(timeout=0.5)  # anything it queued just before exiting
             except queue.Empty:
-                if not proc.is_alive():
-                    try:
-                        msg = q.get(timeout=0.5)  # anything it queued just before exiting
-                    except queue.Empty:
-                        raise DatasetError(
-                            f"the frame-reading process exited with code {proc.exitcode} without "
-                            "finishing; rerun (it may have run out of memory)"
-                        ) from None
-                else:
-                    continue
-            if waiting is not None:
-                waiting.value = 0
-            if slots is not None:
-                msg = slots.unpack(msg)
-            if msg[0] == "end":
-                return
-            if msg[0] == "raise":
-                raise msg[1]
-            yield msg[1], msg[2], msg[3]
-    finally:
-        stop.set()
-        starter.join()
-        if proc.pid is not None:
-            proc.join(timeout=3.0)
-        if proc.is_alive():
-            proc.terminate()
-            proc.join(timeout=2.0)
-        q.cancel_join_thread()
-        q.close()
-        if slots is not None:
-            slots.free.cancel_join_thread()
-            slots.free.close()
+                raise DatasetError(
+                    f"the frame-reading process exited with code {proc.exitcode} without "
+                    "finishing; rerun (it may have run out of memory)"
+                ) from None
+        if waiting is not None:
+            waiting.value = 0
+        return msg
+
+
+def _shut_down(proc, starter: threading.Thread, q, stop, slots) -> None:
+    """Stop the child (asked, then terminated after 3 s) and close the queues without joining their feeders."""
+    stop.set()
+    starter.join()
+    if proc.pid is not None:
+        proc.join(timeout=3.0)
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(timeout=2.0)
+    q.cancel_join_thread()
+    q.close()
+    if slots is not None:
+        slots.free.cancel_join_thread()
+        slots.free.close()

@@ -6,7 +6,7 @@ optionally ``associate.txt`` (``t_rgb rgb t_depth depth``), which is used when p
 rgb and depth are matched like TUM's ``associate.py`` (max difference 0.02 s).
 
 Calibration, in order: the ``camera`` argument; ``camera.yaml`` in the sequence folder (see
-:func:`vslam.datasets.base.read_camera_yaml`); the freiburg1/2/3 preset chosen from the folder
+:func:`vslam.datasets.calibration.read_camera_yaml`); the freiburg1/2/3 preset chosen from the folder
 name (``freiburg1``/``fr1`` ...); an ORB-SLAM style ``TUM*.yaml`` in the folder. Otherwise
 :class:`CalibrationError`.
 
@@ -75,6 +75,57 @@ def _check_files(root: Path, rel: list[str], what: str) -> None:
     log.warning("%s: %d %s files listed are missing; those frames will be skipped", root, len(missing), what)
 
 
+def _read_rgb_list(rgb_path: Path) -> tuple[np.ndarray | None, list[str] | None]:
+    """The mono list, every rgb image: ``(timestamps, files)``, or ``(None, None)`` without rgb.txt
+    (then filled from associate.txt)."""
+    if not rgb_path.is_file():
+        return None, None
+    t_rgb, rows = read_timestamped_list(rgb_path, "rgb list")
+    check_timestamps(t_rgb, rgb_path)
+    return t_rgb, [r[0] for r in rows]
+
+
+def _rgbd_pairs(assoc_path: Path, depth_path: Path, rgb_path: Path, t_rgb, rgb_files, max_difference: float):
+    """The rgb-depth pairs ``(t_rgb, rgb files, t_depth, depth files)`` from associate.txt, else
+    depth.txt associated to rgb.txt within ``max_difference`` s, else None; returned with the mono
+    list (from associate.txt when there was no rgb.txt)."""
+    rgbd = None
+    if assoc_path.is_file():
+        t_a, rows = read_timestamped_list(assoc_path, "association file", min_columns=4)
+        check_timestamps(t_a, assoc_path)
+        try:
+            t_d = np.array([float(r[1]) for r in rows])
+        except ValueError:
+            raise DatasetError(f"{assoc_path}: columns must be 't_rgb rgb t_depth depth'") from None
+        rgbd = (t_a, [r[0] for r in rows], t_d, [r[2] for r in rows])
+        if t_rgb is None:
+            t_rgb, rgb_files = t_a, [r[0] for r in rows]
+    elif depth_path.is_file():
+        t_dl, drows = read_timestamped_list(depth_path, "depth list")
+        check_timestamps(t_dl, depth_path)
+        pairs = associate(t_rgb, t_dl, 0.0, max_difference)
+        if len(pairs) == 0:
+            raise DatasetError(
+                f"{depth_path}: no depth timestamp is within {max_difference} s of an rgb timestamp "
+                f"in {rgb_path}; the lists do not belong together"
+            )
+        rgbd = (t_rgb[pairs[:, 0]], [rgb_files[i] for i in pairs[:, 0]],
+                t_dl[pairs[:, 1]], [drows[j][0] for j in pairs[:, 1]])
+    return rgbd, t_rgb, rgb_files
+
+
+def _stereo_pairs(right_path: Path, rgb_path: Path, t_rgb, rgb_files):
+    """The stereo pairs ``(t, left files, right files)`` from right.txt (an extension), or None."""
+    if not right_path.is_file():
+        return None
+    t_r, rrows = read_timestamped_list(right_path, "right image list")
+    check_timestamps(t_r, right_path)
+    pairs = associate(t_rgb, t_r, 0.0, 1e-3)
+    if len(pairs) == 0:
+        raise DatasetError(f"{right_path}: no right timestamp matches an rgb timestamp of {rgb_path}")
+    return t_rgb[pairs[:, 0]], [rgb_files[i] for i in pairs[:, 0]], [rrows[j][0] for j in pairs[:, 1]]
+
+
 class TumDataset(Dataset):
     """A TUM RGB-D sequence folder."""
 
@@ -97,47 +148,9 @@ class TumDataset(Dataset):
         if not rgb_path.is_file() and not assoc_path.is_file():
             raise DatasetError(f"{rgb_path}: not found; a TUM sequence needs rgb.txt (timestamp filename per line)")
 
-        # mono list: every rgb image
-        if rgb_path.is_file():
-            t_rgb, rows = read_timestamped_list(rgb_path, "rgb list")
-            check_timestamps(t_rgb, rgb_path)
-            rgb_files = [r[0] for r in rows]
-        else:
-            t_rgb = rgb_files = None  # filled from associate.txt below
-
-        # rgbd pairs
-        rgbd = None
-        if assoc_path.is_file():
-            t_a, rows = read_timestamped_list(assoc_path, "association file", min_columns=4)
-            check_timestamps(t_a, assoc_path)
-            try:
-                t_d = np.array([float(r[1]) for r in rows])
-            except ValueError:
-                raise DatasetError(f"{assoc_path}: columns must be 't_rgb rgb t_depth depth'") from None
-            rgbd = (t_a, [r[0] for r in rows], t_d, [r[2] for r in rows])
-            if t_rgb is None:
-                t_rgb, rgb_files = t_a, [r[0] for r in rows]
-        elif depth_path.is_file():
-            t_dl, drows = read_timestamped_list(depth_path, "depth list")
-            check_timestamps(t_dl, depth_path)
-            pairs = associate(t_rgb, t_dl, 0.0, max_difference)
-            if len(pairs) == 0:
-                raise DatasetError(
-                    f"{depth_path}: no depth timestamp is within {max_difference} s of an rgb timestamp "
-                    f"in {rgb_path}; the lists do not belong together"
-                )
-            rgbd = (t_rgb[pairs[:, 0]], [rgb_files[i] for i in pairs[:, 0]],
-                    t_dl[pairs[:, 1]], [drows[j][0] for j in pairs[:, 1]])
-
-        # stereo pairs (extension)
-        stereo = None
-        if right_path.is_file():
-            t_r, rrows = read_timestamped_list(right_path, "right image list")
-            check_timestamps(t_r, right_path)
-            pairs = associate(t_rgb, t_r, 0.0, 1e-3)
-            if len(pairs) == 0:
-                raise DatasetError(f"{right_path}: no right timestamp matches an rgb timestamp of {rgb_path}")
-            stereo = (t_rgb[pairs[:, 0]], [rgb_files[i] for i in pairs[:, 0]], [rrows[j][0] for j in pairs[:, 1]])
+        t_rgb, rgb_files = _read_rgb_list(rgb_path)
+        rgbd, t_rgb, rgb_files = _rgbd_pairs(assoc_path, depth_path, rgb_path, t_rgb, rgb_files, max_difference)
+        stereo = _stereo_pairs(right_path, rgb_path, t_rgb, rgb_files)
 
         self.sensors = tuple(s for s, ok in (("mono", True), ("stereo", stereo is not None), ("rgbd", rgbd is not None)) if ok)
         default = "rgbd" if rgbd is not None else ("stereo" if stereo is not None else "mono")
@@ -146,6 +159,20 @@ class TumDataset(Dataset):
             "stereo": "no right.txt in the folder",
         })
 
+        self._use_lists(rgbd, stereo, t_rgb, rgb_files)
+        self.camera, extras = self._calibration(camera)
+        self.depth_scale = float(extras.get("depth_scale", TUM_DEPTH_SCALE))
+        self.frame_rate = float(extras.get("fps", 30.0))
+        if self.sensor == "stereo" and not self.camera.baseline:
+            raise CalibrationError(
+                f"{root / 'camera.yaml'}: stereo needs the baseline; add 'baseline: <metres>' to camera.yaml"
+            )
+        self._gt_file = root / "groundtruth.txt"
+        self._gt_max_gap = gt_max_gap
+
+    def _use_lists(self, rgbd, stereo, t_rgb, rgb_files) -> None:
+        """Timestamps and files of the selected sensor (checked to exist, missing ones warned about)."""
+        root = self.root
         self._depth_files: list[str] | None = None
         self._right_files: list[str] | None = None
         if self.sensor == "rgbd":
@@ -160,16 +187,6 @@ class TumDataset(Dataset):
             _check_files(root, self._depth_files, "depth")
         if self._right_files is not None:
             _check_files(root, self._right_files, "right image")
-
-        self.camera, extras = self._calibration(camera)
-        self.depth_scale = float(extras.get("depth_scale", TUM_DEPTH_SCALE))
-        self.frame_rate = float(extras.get("fps", 30.0))
-        if self.sensor == "stereo" and not self.camera.baseline:
-            raise CalibrationError(
-                f"{root / 'camera.yaml'}: stereo needs the baseline; add 'baseline: <metres>' to camera.yaml"
-            )
-        self._gt_file = root / "groundtruth.txt"
-        self._gt_max_gap = gt_max_gap
 
     # ------------------------------------------------------------------------------------------
     def _calibration(self, camera: PinholeCamera | str | Path | None) -> tuple[PinholeCamera, dict]:

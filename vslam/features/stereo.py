@@ -175,13 +175,31 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
     sel = np.flatnonzero(valid)
     if len(sel) == 0:
         return disp, ok
-    K = len(sel)
+    tables = _row_window_sums(left, right, ul[sel], vl[sel], x0[sel], w, S)
+    base = (ul[sel] - w - x0[sel]).astype(np.float64)  # strip column of the window start at d = 0
+    d, good, step = _row_gauss_newton(tables, base, d0[sel], iters, N, S - W)
+    good &= (np.abs(step) < tol) & (np.abs(d - d0[sel]) <= max_change[sel])
+    disp[sel] = np.where(good, d, d0[sel])
+    ok[sel] = good
+    return disp, ok
+
+
+def _row_window_sums(left: np.ndarray, right: np.ndarray, ul: np.ndarray, vl: np.ndarray, x0: np.ndarray, w: int,
+                     S: int) -> tuple[np.ndarray, ...]:
+    """The window sums of :func:`refine_disparity_row` for every integer start ``j`` of the right
+    window in each point's strip (``S`` columns from right column ``x0``; left window ``(2w+1)^2``
+    centred on ``(ul, vl)``, zero-mean): ``A = sum I_r``, ``B = sum g``, ``P00 = sum I_r(j) g(j)``,
+    ``Q00 = sum g(j) g(j)``, ``P01 = sum I_r(j) g(j+1)``, ``P10 = sum I_r(j+1) g(j)``,
+    ``Q01 = sum g(j) g(j+1)``, ``C = sum I_l g(j)``, each ``(K, S - W + 1)``."""
+    W = 2 * w + 1
+    K = len(ul)
+    wid = left.shape[1]
     dx = np.arange(-w, w + 1)
-    rows = (vl[sel, None] + dx[None, :])[:, :, None] * wid  # (K, W, 1) flat offsets of the window rows
-    pl = np.take(np.ascontiguousarray(left).reshape(-1), rows + (ul[sel, None] + dx[None, :])[:, None, :])
+    rows = (vl[:, None] + dx[None, :])[:, :, None] * wid  # (K, W, 1) flat offsets of the window rows
+    pl = np.take(np.ascontiguousarray(left).reshape(-1), rows + (ul[:, None] + dx[None, :])[:, None, :])
     pl = pl.astype(np.float32)  # (K, W, W)
     pl -= pl.mean(axis=(1, 2), keepdims=True)
-    ext = np.take(np.ascontiguousarray(right).reshape(-1), rows + (x0[sel, None] + np.arange(-1, S + 1)[None, :])[:, None, :])
+    ext = np.take(np.ascontiguousarray(right).reshape(-1), rows + (x0[:, None] + np.arange(-1, S + 1)[None, :])[:, None, :])
     ext = ext.astype(np.float32)  # (K, W, S+2)
     st = ext[:, :, 1:-1]  # I_r on the strip
     gr = 0.5 * (ext[:, :, 2:] - ext[:, :, :-2])  # dI_r/dx on the strip
@@ -201,22 +219,29 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
     win[:, :, 0] = col[:, :, :W].sum(axis=2)
     for j in range(1, S - W + 1):
         win[:, :, j] = win[:, :, j - 1] + col[:, :, j + W - 1] - col[:, :, j - 1]
-    A, B, P00, Q00, P01, P10, Q01 = win  # each (K, S-W+1)
     # sum I_l g(j) for every start j: all column pairs (batched W x S matmul), then the diagonals
     cross = np.matmul(pl.transpose(0, 2, 1), gr)  # (K, W, S): [c, s] = sum_rows I_l(c) g(s)
     cw = np.arange(W)[:, None]
     C = cross[:, cw, np.arange(S - W + 1)[None, :] + cw].sum(axis=1)  # (K, S-W+1)
+    return (*win, C)  # A, B, P00, Q00, P01, P10, Q01, C: each (K, S-W+1)
 
+
+def _row_gauss_newton(tables: tuple[np.ndarray, ...], base: np.ndarray, d_init: np.ndarray, iters: int, N: float,
+                      last_start: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton on the disparities ``d`` from ``d_init`` with the window sums of
+    :func:`_row_window_sums` (window start ``base - d`` in strip columns, at most ``last_start``),
+    each sum linearly interpolated between integer starts. Returns ``(d, good, last step)``."""
+    A, B, P00, Q00, P01, P10, Q01, C = tables
+    K = len(d_init)
     kr = np.arange(K)
-    base = (ul[sel] - w - x0[sel]).astype(np.float64)  # strip column of the window start at d = 0
-    d = d0[sel].copy()
+    d = d_init.copy()
     good = np.ones(K, bool)
     step = np.zeros(K)
     for _ in range(iters):
         pos = base - d  # window start in strip columns (fractional)
         k = np.floor(pos).astype(np.int64)
-        good &= (k >= 0) & (k + 1 <= S - W)
-        k = np.clip(k, 0, S - W - 1)
+        good &= (k >= 0) & (k + 1 <= last_start)
+        k = np.clip(k, 0, last_start - 1)
         a = pos - k
         b = 1.0 - a
         s_ig = b * b * P00[kr, k] + a * b * (P01[kr, k] + P10[kr, k]) + a * a * P00[kr, k + 1]
@@ -232,10 +257,7 @@ def refine_disparity_row(left: np.ndarray, right: np.ndarray, uv: np.ndarray, di
         srg = s_ig - s_i * s_g / N - s_lg
         step = np.clip(srg / np.where(flat, 1.0, hgg), -1.0, 1.0)
         d += np.where(flat, 0.0, step)
-    good &= (np.abs(step) < tol) & (np.abs(d - d0[sel]) <= max_change[sel])
-    disp[sel] = np.where(good, d, d0[sel])
-    ok[sel] = good
-    return disp, ok
+    return d, good, step
 
 
 def match_stereo_descriptors(left: Features, right: Features, cfg: StereoConfig,

@@ -76,17 +76,8 @@ def align_points(
     Raises:
         GeometryError: bad shapes, fewer than 3 pairs, NaN/inf, collinear points, no consensus.
     """
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
-        raise GeometryError(f"align_points needs two (N, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
+    src, dst = _check_align_inputs(src, dst, threshold)
     n = src.shape[0]
-    if n < 3:
-        raise GeometryError(f"align_points needs at least 3 point pairs, got {n}")
-    if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
-        raise GeometryError("align_points got NaN or inf coordinates; drop those pairs first")
-    if threshold is not None and not (np.isfinite(threshold) and threshold > 0):
-        raise GeometryError(f"align_points: threshold must be a positive number, got {threshold}")
     if n == 3:
         R, t, s = umeyama(src, dst, with_scale)
         return make_T(R, t, s), np.ones(3, dtype=bool)
@@ -123,7 +114,30 @@ def align_points(
                 needed = _ransac_iterations(best_score / n, confidence, max_iters)
     if best is None:
         raise GeometryError("align_points: every 3-point sample is degenerate (points collinear or coincident)")
-    res = best[3]
+    return _refit_on_inliers(src, dst, best[3], threshold, with_scale)
+
+
+def _check_align_inputs(src, dst, threshold: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The point arrays as float ``(N, 3)``; raise :class:`GeometryError` on bad input."""
+    src = np.asarray(src, dtype=float)
+    dst = np.asarray(dst, dtype=float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise GeometryError(f"align_points needs two (N, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
+    n = src.shape[0]
+    if n < 3:
+        raise GeometryError(f"align_points needs at least 3 point pairs, got {n}")
+    if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
+        raise GeometryError("align_points got NaN or inf coordinates; drop those pairs first")
+    if threshold is not None and not (np.isfinite(threshold) and threshold > 0):
+        raise GeometryError(f"align_points: threshold must be a positive number, got {threshold}")
+    return src, dst
+
+
+def _refit_on_inliers(
+    src: np.ndarray, dst: np.ndarray, res: np.ndarray, threshold: float | None, with_scale: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Umeyama re-fit on the inliers of the best hypothesis (residuals ``res``), up to 3 times
+    while the inlier set changes; without a threshold it is 2.5x the median residual (LMedS)."""
     thr = threshold if threshold is not None else max(2.5 * float(np.median(res)), 1e-12)
     mask = res < thr
     if mask.sum() < 3:

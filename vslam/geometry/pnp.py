@@ -12,6 +12,7 @@ returns ``None``.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Literal
 
 import cv2
@@ -220,6 +221,84 @@ def _vertical_rows(out: np.ndarray, c: np.ndarray, d: np.ndarray, x, y, z) -> No
     np.multiply(c, x, out=out[5])
 
 
+@dataclass
+class _PoseResiduals:
+    """The fixed data of :func:`refine_pose`: points ``(3, n)``, observations, information and the
+    Huber/chi-square thresholds per point (3 dof where a right-camera ``u_r`` is observed)."""
+
+    Xt: np.ndarray
+    u_obs: np.ndarray
+    v_obs: np.ndarray
+    ur: np.ndarray
+    has_r: np.ndarray
+    info: np.ndarray
+    delta: np.ndarray
+    chi2: np.ndarray
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    bf: float
+
+    @classmethod
+    def build(cls, X_world, uv, K, sigma, u_right, bf) -> _PoseResiduals:
+        n = len(X_world)
+        has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
+        return cls(
+            Xt=np.ascontiguousarray(np.asarray(X_world, float).T),  # (3, n): rows x, y, z
+            u_obs=np.ascontiguousarray(uv[:, 0], dtype=float),
+            v_obs=np.ascontiguousarray(uv[:, 1], dtype=float),
+            ur=np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0),
+            has_r=has_r,
+            info=np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2,
+            delta=np.where(has_r, np.sqrt(CHI2_3DOF), np.sqrt(CHI2_2DOF)),
+            chi2=np.where(has_r, CHI2_3DOF, CHI2_2DOF),
+            fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], bf=bf,
+        )
+
+    def project(self, T: np.ndarray):
+        """Camera points ``Xc (3, n)``, clamped depth ``z``, ``1 / z`` and the pixels ``u, v``."""
+        Xc = T[:3, :3] @ self.Xt + T[:3, 3:4]
+        z = np.maximum(Xc[2], 1e-6)
+        iz = 1.0 / z
+        return Xc, z, iz, self.fx * Xc[0] * iz + self.cx, self.fy * Xc[1] * iz + self.cy
+
+    def linearize(self, T: np.ndarray, inl: np.ndarray, A: np.ndarray, r: np.ndarray, any_r: bool) -> None:
+        """Fill the Huber-weighted Jacobian ``A (6, m n)`` and residuals ``r (m n,)`` at ``T``
+        (rows: ``u_1..u_n, v_1..v_n[, ur_1..ur_n]``); outliers and points behind get weight 0."""
+        n = len(self.u_obs)
+        fx, fy, bf, has_r = self.fx, self.fy, self.bf, self.has_r
+        Xc, z, iz, u_hat, v_hat = self.project(T)
+        x, y = Xc[0], Xc[1]
+        ru = u_hat - self.u_obs
+        rv = v_hat - self.v_obs
+        rs = np.where(has_r, (u_hat - bf * iz) - self.ur, 0.0)
+        e = np.sqrt(self.info * (ru * ru + rv * rv + rs * rs))
+        w = self.info * np.where(e <= self.delta, 1.0, self.delta / np.maximum(e, 1e-12))
+        w[~(inl & (Xc[2] > 0))] = 0.0
+        sw = np.sqrt(w)
+        a = fx * iz * sw
+        c = fy * iz * sw
+        b = -fx * x * iz * iz * sw
+        d = -fy * y * iz * iz * sw
+        _horizontal_rows(A[:, :n], a, b, x, y, z)
+        _vertical_rows(A[:, n:2 * n], c, d, x, y, z)
+        r[:n] = ru * sw
+        r[n:2 * n] = rv * sw
+        if any_r:
+            swr = sw * has_r
+            _horizontal_rows(A[:, 2 * n:], fx * iz * swr, (-fx * x * iz * iz + bf * iz * iz) * swr, x, y, z)
+            r[2 * n:] = rs * swr
+
+    def inliers(self, T: np.ndarray) -> np.ndarray:
+        """Chi-square test of the (information-weighted) squared reprojection errors at ``T``."""
+        Xc, z, iz, u_hat, v_hat = self.project(T)
+        e2 = (u_hat - self.u_obs) ** 2 + (v_hat - self.v_obs) ** 2
+        e2 += np.where(self.has_r, ((u_hat - self.bf / z) - self.ur) ** 2, 0.0)
+        e2 *= self.info
+        return (e2 < self.chi2) & (Xc[2] > 0)
+
+
 def refine_pose(
     T_cam_world: np.ndarray,
     X_world: np.ndarray,
@@ -243,50 +322,15 @@ def refine_pose(
     """
     n = len(X_world)
     T = T_cam_world.copy()
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    info = np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2
-    has_r = np.zeros(n, bool) if u_right is None else np.isfinite(u_right)
-    ur = np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0)
-    delta = np.where(has_r, np.sqrt(CHI2_3DOF), np.sqrt(CHI2_2DOF))
-    chi2 = np.where(has_r, CHI2_3DOF, CHI2_2DOF)
-    Xt = np.ascontiguousarray(np.asarray(X_world, float).T)  # (3, n): rows x, y, z
-    u_obs = np.ascontiguousarray(uv[:, 0], dtype=float)
-    v_obs = np.ascontiguousarray(uv[:, 1], dtype=float)
-    any_r = bool(has_r.any())
+    res = _PoseResiduals.build(X_world, uv, K, sigma, u_right, bf)
+    any_r = bool(res.has_r.any())
     m = 3 if any_r else 2
     A = np.empty((6, m * n))  # rows: d(residual)/d(xi_k), residuals u_1..u_n, v_1..v_n[, ur_1..ur_n]
     r = np.empty(m * n)
     inl = np.ones(n, dtype=bool)
-
-    def project(T):
-        Xc = T[:3, :3] @ Xt + T[:3, 3:4]
-        z = np.maximum(Xc[2], 1e-6)
-        iz = 1.0 / z
-        return Xc, z, iz, fx * Xc[0] * iz + cx, fy * Xc[1] * iz + cy
-
     for _ in range(rounds):
         for _ in range(iterations):
-            Xc, z, iz, u_hat, v_hat = project(T)
-            x, y = Xc[0], Xc[1]
-            ru = u_hat - u_obs
-            rv = v_hat - v_obs
-            rs = np.where(has_r, (u_hat - bf * iz) - ur, 0.0)
-            e = np.sqrt(info * (ru * ru + rv * rv + rs * rs))
-            w = info * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
-            w[~(inl & (Xc[2] > 0))] = 0.0
-            sw = np.sqrt(w)
-            a = fx * iz * sw
-            c = fy * iz * sw
-            b = -fx * x * iz * iz * sw
-            d = -fy * y * iz * iz * sw
-            _horizontal_rows(A[:, :n], a, b, x, y, z)
-            _vertical_rows(A[:, n:2 * n], c, d, x, y, z)
-            r[:n] = ru * sw
-            r[n:2 * n] = rv * sw
-            if any_r:
-                swr = sw * has_r
-                _horizontal_rows(A[:, 2 * n:], fx * iz * swr, (-fx * x * iz * iz + bf * iz * iz) * swr, x, y, z)
-                r[2 * n:] = rs * swr
+            res.linearize(T, inl, A, r, any_r)
             H = A @ A.T
             g = A @ r
             try:
@@ -299,11 +343,7 @@ def refine_pose(
             T = dT @ T
             if np.linalg.norm(dx) < 1e-5:
                 break
-        Xc, z, iz, u_hat, v_hat = project(T)
-        e2 = (u_hat - u_obs) ** 2 + (v_hat - v_obs) ** 2
-        e2 += np.where(has_r, ((u_hat - bf / z) - ur) ** 2, 0.0)
-        e2 *= info
-        inl = (e2 < chi2) & (Xc[2] > 0)
+        inl = res.inliers(T)
         if inl.sum() < 6:
             break
     return T, inl

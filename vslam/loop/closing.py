@@ -62,16 +62,16 @@ from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.geometry.lie import inv_se3
 from vslam.loop.config import LoopConfig
 from vslam.loop.detector import LoopDetector
-from vslam.loop.verification import Features, Verified, verify
+from vslam.loop.essential_graph import EssentialGraph, build_essential_graph, write_back_corrections
+from vslam.loop.loop_fusion import fuse_loop_points
+from vslam.loop.verification import Features, Verified, VerifyParams, verify
 from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
 from vslam.map.config import PoseGraphConfig
 from vslam.map.database import KeyframeDatabase
-from vslam.map.fusion import apply_remap, new_remap
 from vslam.map.keyframe import KeyFrame
 from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.map import Map
-from vslam.map.matching import guided_match, project_local_points
-from vslam.map.pose_graph import correct_points, optimize_pose_graph
+from vslam.map.pose_graph import optimize_pose_graph
 
 log = logging.getLogger(__name__)
 
@@ -102,11 +102,7 @@ class _Prepared:
     match_id: int
     ver: Verified
     score: float
-    nodes: list[int]
-    T_before: np.ndarray
-    edges: list
-    T_init: np.ndarray
-    fixed: list[int]
+    graph: EssentialGraph
     q_group: list[int]
     c_group: list[int]
     fused: int
@@ -237,10 +233,11 @@ class LoopCloser:
             self._last_loop_kf = kf_id
         # the essential graph is solved without the map lock (realtime: tracking goes on meanwhile)
         t_pg = time.perf_counter()
-        result = optimize_pose_graph(prepared.T_init, prepared.edges, fixed=prepared.fixed,
+        graph = prepared.graph
+        result = optimize_pose_graph(graph.T_init, graph.edges, fixed=graph.fixed,
                                      sim3=self.sensor == "mono", config=self.pose_graph_config)
-        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(prepared.nodes),
-                 len(prepared.edges), result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
+        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(graph.nodes),
+                 len(graph.edges), result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
         with self.lock:
             record = self._apply_correction(prepared, result)
         cc = self.config.closing
@@ -319,13 +316,14 @@ class LoopCloser:
         extra = self._keypoints_with_depth(group[: 1 + cc.depth_keypoint_neighbours]) \
             if cc.match_keypoints_with_depth else None
         ex = {} if extra is None else {"extra_X": extra[0], "extra_desc": extra[1], "extra_src": extra[2]}
-        return verify(self.features_of(kf), self.map.points, pts, self.camera, self.sensor,
-                      ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
-                      align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
-                      search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
-                      seed=kf.id, refine_ransac=cc.refine_ransac_pose,
-                      guided_max_distance=cc.guided_max_descriptor_distance, guided_ratio=cc.guided_ratio,
-                      min_search_radius_px=cc.min_search_radius_px, **ex)
+        params = VerifyParams(
+            ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
+            align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
+            search_radius_px=cc.search_radius_px, scale_factor=self.scale_factor, bf=self.bf,
+            seed=kf.id, refine_ransac=cc.refine_ransac_pose,
+            guided_max_distance=cc.guided_max_descriptor_distance, guided_ratio=cc.guided_ratio,
+            min_search_radius_px=cc.min_search_radius_px)
+        return verify(self.features_of(kf), self.map.points, pts, self.camera, self.sensor, params, **ex)
 
     def _verify(self, kf: KeyFrame, match_id: int, single: bool = False) -> Verified | str | None:
         """Verify the candidate; accepted with ``min_inliers`` map-point inliers, or when
@@ -397,148 +395,47 @@ class LoopCloser:
         return False
 
     # ------------------------------------------------------------------ correction
-    def _prepare_correction(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> "_Prepared":
+    def _prepare_correction(self, kf: KeyFrame, match_id: int, ver: Verified, score: float) -> _Prepared:
         """Under the map lock: fuse the loop's duplicated points and build the essential graph
         (a snapshot of the keyframe poses; solved by :meth:`process` without the lock)."""
         cc = self.config.closing
-        seg = kf.segment
-        nodes = sorted(k.id for k in self.map.keyframes.values() if k.segment == seg)
-        index = {k: i for i, k in enumerate(nodes)}
-        T_before = np.stack([self.map.keyframes[k].T_world_cam for k in nodes])
+        in_segment = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
         # the query side: the query and its covisible keyframes, moved by the loop's correction
         S_q = ver.S_world_cam
         S_corr = S_q @ kf.T_cam_world
-        q_group = [kf.id] + [k for k in self._connected(kf.id) if k in index and k != match_id]
+        q_group = [kf.id] + [k for k in self._connected(kf.id) if k in in_segment and k != match_id]
         c_group = self._group(match_id, set(q_group))
         S_init = {k: S_corr @ self.map.keyframes[k].T_world_cam for k in q_group}
-        fused = self._fuse(kf, ver, q_group, c_group, S_init)
-        # ---- essential graph
-        edges = []
-        prev = None
-        for k in nodes:  # spanning tree: each keyframe to its predecessor in the segment
-            if prev is not None:
-                edges.append((index[prev], index[k], inv_se3(T_before[index[prev]]) @ T_before[index[k]]))
-            prev = k
-        qs, cs = set(q_group), set(c_group)
-        for a in nodes:
-            for b, w in self.map.covisibility.get(a, {}).items():
-                if b <= a or b not in index or w < cc.covisibility_edge_weight or index[b] == index[a] + 1:
-                    continue
-                if (a in qs and b in cs) or (a in cs and b in qs):
-                    continue  # links across the loop are given by the loop edges below
-                edges.append((index[a], index[b], inv_se3(T_before[index[a]]) @ T_before[index[b]]))
-        T_match = self.map.keyframes[match_id].T_world_cam
-        for k in q_group:  # loop edges: the candidate to every keyframe of the corrected query side
-            edges.append((index[match_id], index[k], inv_se3(T_match) @ S_init[k], cc.loop_edge_information))
-        T_init = T_before.copy()
-        for k in q_group:
-            S = S_init[k]
-            s = float(np.cbrt(np.linalg.det(S[:3, :3])))
-            T_init[index[k]] = S
-            T_init[index[k], :3, :3] /= s
-        fixed = sorted({index[nodes[0]], index[match_id]})
-        return _Prepared(kf, match_id, ver, score, nodes, T_before, edges, T_init, fixed, q_group, c_group, fused)
+        fused = fuse_loop_points(self.map, self.camera, self.sensor, cc, kf, ver, q_group, c_group, S_init)
+        graph = build_essential_graph(self.map, kf.segment, match_id, q_group, c_group, S_init,
+                                      cc.covisibility_edge_weight, cc.loop_edge_information)
+        return _Prepared(kf, match_id, ver, score, graph, q_group, c_group, fused)
 
-    def _apply_correction(self, p: "_Prepared", result) -> LoopRecord:
-        """Under the map lock: write the essential graph's result back.
-
-        Each keyframe ``k`` of the segment moves by its node's correction
-        ``S_k = S_after T_before^-1`` applied to its *current* pose (``S_k T_world_k``), so a local BA
-        that moved it during the solve is kept; keyframes created during the solve take the
-        correction of the newest older node (ORB-SLAM2 corrects keyframes inserted during a loop
-        correction the same way). Points move with their reference (first) keyframe. In
-        deterministic mode nothing changes during the solve and this is the plain write-back.
-        """
-        kf, match_id, ver, score = p.kf, p.match_id, p.ver, p.score
-        nodes, T_before, q_group, c_group, fused = p.nodes, p.T_before, p.q_group, p.c_group, p.fused
-        seg = kf.segment
-        C = result.S_world_cam @ np.linalg.inv(T_before)  # per-node correction (Sim(3) for monocular)
-        now = sorted(k for k, f in self.map.keyframes.items() if f.segment == seg)
-        snap = np.asarray(nodes)
-        node_of = np.searchsorted(snap, now, side="right") - 1  # the node itself, else the newest older one
-        keep = node_of >= 0
-        now = [k for k, ok in zip(now, keep) if ok]
-        node_of = node_of[keep]
-        T_now = np.stack([self.map.keyframes[k].T_world_cam for k in now])
-        S_now = C[node_of] @ T_now
-        scales = np.cbrt(np.linalg.det(S_now[:, :3, :3]))
-        T_after = S_now.copy()
-        T_after[:, :3, :3] /= scales[:, None, None]
-        store = self.map.points
-        n = len(store)
-        ids = np.flatnonzero(store.alive[:n])
-        ref = store.first_kf[ids]
-        lut = np.full(max(now) + 2, -1, np.int64)
-        lut[now] = np.arange(len(now))
-        inseg = (ref >= 0) & (ref <= max(now))
-        ids, ref = ids[inseg], lut[ref[inseg]]
-        ids, ref = ids[ref >= 0], ref[ref >= 0]
-        store.position[ids] = correct_points(store.position[ids], ref, T_now, S_now)
+    def _apply_correction(self, p: _Prepared, result) -> LoopRecord:
+        """Under the map lock: write the essential graph's result back
+        (:func:`vslam.loop.essential_graph.write_back_corrections`: each keyframe moves by its node's
+        correction applied to its *current* pose, so a local BA that moved it during the solve is
+        kept; keyframes created during the solve take the correction of the newest older node, as
+        ORB-SLAM2 corrects keyframes inserted during a loop correction; points move with their
+        reference keyframe). In deterministic mode nothing changes during the solve and this is the
+        plain write-back."""
+        kf, match_id, ver = p.kf, p.match_id, p.ver
         T_q_before = kf.T_world_cam.copy()
-        for k, T in zip(now, T_after):
-            self.map.keyframes[k].T_world_cam = T.copy()
+        write_back_corrections(self.map, kf.segment, p.graph.nodes, p.graph.T_before, result.S_world_cam)
         self.map.loop_epoch += 1  # local BAs built before this write-back are stale
-        for k in set(q_group) | set(c_group):
+        for k in set(p.q_group) | set(p.c_group):
             self.map.update_covisibility(k)
         for cb in self.correction_listeners:
             cb(kf.id, T_q_before, kf.T_world_cam.copy())
         dT = ver.T_world_cam @ inv_se3(T_q_before)
         rec = LoopRecord(
             query_kf=kf.id, match_kf=match_id, query_frame=kf.frame_index,
-            match_frame=self.map.keyframes[match_id].frame_index, inliers=ver.n_inliers, score=round(score, 3),
+            match_frame=self.map.keyframes[match_id].frame_index, inliers=ver.n_inliers, score=round(p.score, 3),
             correction_m=round(float(np.linalg.norm(ver.T_world_cam[:3, 3] - T_q_before[:3, 3])), 4),
-            correction_deg=round(_rot_deg(dT[:3, :3]), 3), scale=round(ver.scale, 4), fused_points=fused, ms=0.0,
+            correction_deg=round(_rot_deg(dT[:3, :3]), 3), scale=round(ver.scale, 4), fused_points=p.fused, ms=0.0,
         )
         self.loops.append(rec)
         return rec
-
-    # ------------------------------------------------------------------ fusion
-    def _fuse(self, kf: KeyFrame, ver: Verified, q_group: list[int], c_group: list[int],
-              S_init: dict[int, np.ndarray]) -> int:
-        """Fuse the loop's duplicated points: the candidate-side point survives, the query-side one
-        is replaced in every keyframe (ORB-SLAM CorrectLoop + SearchAndFuse). Returns the number of
-        query-side points removed."""
-        store = self.map.points
-        n = len(store)
-        remap = new_remap(n)
-        n_fused = self._assign(kf, ver.kp_idx, ver.point_ids, remap)
-        c_pts = self.map.local_point_ids(c_group)
-        for k in q_group:
-            if k == kf.id:
-                continue
-            other = self.map.keyframes[k]
-            if other.descriptors is None or other.descriptors.dtype != np.uint8:
-                continue
-            S = S_init[k]
-            s = float(np.cbrt(np.linalg.det(S[:3, :3])))
-            T = S.copy()
-            T[:3, :3] /= s
-            vis, proj, _ = project_local_points(store, c_pts[store.alive[c_pts]], inv_se3(T), self.camera,
-                                                check_distance=self.sensor != "mono")
-            if len(vis) == 0:
-                continue
-            m, kp, _ = guided_match(proj, store.descriptor[vis], other.uv_undist, other.descriptors,
-                                    self.config.closing.fuse_radius_px, True,
-                                    self.config.closing.fuse_max_descriptor_distance, self.config.closing.fuse_ratio)
-            n_fused += self._assign(other, kp, vis[m], remap)
-        if n_fused:
-            apply_remap(self.map.keyframes.values(), remap)
-        return n_fused
-
-    def _assign(self, kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:
-        """Keypoints ``kp`` of ``kf`` observe the (candidate-side) points ``pids``."""
-        store = self.map.points
-        if len(kp) == 0:
-            return 0
-        # a candidate point already observed by this keyframe elsewhere: skip (one observation each)
-        dup_obs = np.isin(pids, kf.point_ids[kf.point_ids >= 0]) & (kf.point_ids[kp] != pids)
-        kp, pids = kp[~dup_obs], pids[~dup_obs]
-        cur = kf.point_ids[kp]
-        free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
-        kf.point_ids[kp[free]] = pids[free]
-        np.add.at(store.n_obs, pids[free], 1)
-        dup = ~free & (cur != pids)
-        return self.map.merge_points(remap[cur[dup]], remap[pids[dup]], remap)
 
     # ------------------------------------------------------------------ stats
     def loop_list(self) -> list[list[int]]:

@@ -11,7 +11,8 @@ chi-square inlier test).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -105,13 +106,59 @@ def _refine(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera:
     return T_cw, kp_idx[inl], pids[inl]
 
 
+@dataclass(frozen=True)
+class VerifyParams:
+    """The thresholds of :func:`verify` (loop closing builds them from ``LoopClosingConfig``,
+    relocalization from its own config).
+
+    Attributes:
+        ratio, max_distance: descriptor matching (ratio + mutual) of step 1.
+        min_matches: fewest descriptor matches; RANSAC needs ``max(min_matches // 2, 6)`` inliers.
+        align_threshold_m: 3D-3D inlier distance at 1 m depth (grows with ``z^2``), metric sensors.
+        align_threshold_rel: monocular 3D-3D inlier distance relative to the median scene extent.
+        search_radius_px, min_search_radius_px: guided matching radius of round 1; round 2 uses
+            ``max(search_radius_px / 2, min_search_radius_px)``.
+        scale_factor: ORB pyramid scale (per-octave sigma of the refinement).
+        bf: stereo baseline times focal length (0: no ``u_right`` residual).
+        pnp_reproj_px: PnP RANSAC inlier threshold (frames without 3D points).
+        seed: RANSAC seed.
+        refine_ransac: refine the 3D-3D RANSAC pose on its inliers' reprojection errors (see :func:`verify`).
+        guided_max_distance, guided_ratio: descriptor bounds of the guided matching.
+    """
+
+    ratio: float = 0.8
+    max_distance: float = 64.0
+    min_matches: int = 20
+    align_threshold_m: float = 0.05
+    align_threshold_rel: float = 0.03
+    search_radius_px: float = 8.0
+    scale_factor: float = 1.2
+    bf: float = 0.0
+    pnp_reproj_px: float = 4.0
+    seed: int = 0
+    refine_ransac: bool = False
+    guided_max_distance: float = 64.0
+    guided_ratio: float = 0.9
+    min_search_radius_px: float = 3.0
+
+
+@dataclass
+class _Ransac:
+    """A RANSAC pose ``T_cw`` (Sim(3) ``scale``) and its inlier pairs: keypoints ``kp``, points
+    ``pids`` (-1: an extra candidate, not a map point) at world positions ``X``."""
+
+    T_cw: np.ndarray
+    scale: float
+    n_ransac: int
+    kp: np.ndarray
+    pids: np.ndarray
+    X: np.ndarray
+
+
 def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera, sensor: str,
-           *, ratio: float = 0.8, max_distance: float = 64.0, min_matches: int = 20, align_threshold_m: float = 0.05,
-           align_threshold_rel: float = 0.03, search_radius_px: float = 8.0, scale_factor: float = 1.2,
-           bf: float = 0.0, pnp_reproj_px: float = 4.0, seed: int = 0,
-           extra_X: np.ndarray | None = None, extra_desc: np.ndarray | None = None,
-           extra_src: np.ndarray | None = None, refine_ransac: bool = False, guided_max_distance: float = 64.0,
-           guided_ratio: float = 0.9, min_search_radius_px: float = 3.0) -> Verified | None:
+           params: VerifyParams | None = None, *, extra_X: np.ndarray | None = None,
+           extra_desc: np.ndarray | None = None, extra_src: np.ndarray | None = None,
+           **overrides: Any) -> Verified | None:
     """Estimate the pose of ``feat`` against map points ``group_pts`` (ids into ``store``).
 
     1. descriptor matching (ratio + mutual) of the keypoints to the points;
@@ -120,8 +167,10 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
        otherwise PnP RANSAC (:func:`vslam.geometry.pnp.solve_pnp`);
     3. two rounds of guided matching by projection + robust pose refinement.
 
-    ``guided_max_distance`` / ``guided_ratio``: descriptor bounds of the guided matching in 3, whose second
-    round searches ``max(search_radius_px / 2, min_search_radius_px)``.
+    ``params`` (:class:`VerifyParams`, default its defaults); keyword ``overrides`` replace single
+    fields of it (``verify(..., ratio=0.7)``). ``guided_max_distance`` / ``guided_ratio``: descriptor
+    bounds of the guided matching in 3, whose second round searches
+    ``max(search_radius_px / 2, min_search_radius_px)``.
 
     ``refine_ransac``: between 2 and 3, the 3D-3D RANSAC pose is refined on its inliers' reprojection
     (and ``u_right``) errors (:func:`refine_pose`) and the pairs that fail its chi-square test are
@@ -142,101 +191,145 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
 
     Returns None when any stage has too little support; the caller applies its own inlier threshold.
     """
+    p = replace(params or VerifyParams(), **overrides)
     mono = sensor == "mono"
-    scale = 1.0
     if extra_X is not None and len(extra_X) and store.descriptor is not None:
-        cand_X = np.concatenate([store.position[group_pts], extra_X])
-        cand_desc = np.concatenate([store.descriptor[group_pts], extra_desc])
-        cand_ids = np.concatenate([group_pts, np.full(len(extra_X), -1, np.int64)])
-        if feat.descriptors is None or len(feat.descriptors) < 2 or len(cand_desc) < 2:
+        cands = _match_with_extras(feat, store, group_pts, extra_X, extra_desc, extra_src, p)
+        if cands is None:
             return None
-        if extra_src is None:
-            i1, i2, _ = match_descriptors(feat.descriptors, cand_desc, binary=True, ratio=ratio, mutual=True,
-                                          max_distance=max_distance)
-            i1, i2 = np.asarray(i1, np.int64), np.asarray(i2, np.int64)
-        else:
-            n_map = len(group_pts)
-            parts1, parts2 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-            if n_map >= 2:
-                j1, j2, _ = match_descriptors(feat.descriptors, cand_desc[:n_map], binary=True, ratio=ratio,
-                                              mutual=True, max_distance=max_distance)
-                parts1.append(np.asarray(j1, np.int64))
-                parts2.append(np.asarray(j2, np.int64))
-            for src in np.unique(extra_src):
-                sel = np.flatnonzero(extra_src == src)
-                if len(sel) < 2:
-                    continue
-                j1, j2, _ = match_descriptors(feat.descriptors, extra_desc[sel], binary=True, ratio=ratio,
-                                              mutual=True, max_distance=max_distance)
-                parts1.append(np.asarray(j1, np.int64))
-                parts2.append(n_map + sel[np.asarray(j2, np.int64)])
-            i1, i2 = np.concatenate(parts1), np.concatenate(parts2)
-        kp, X_world, pids = i1, cand_X[i2], cand_ids[i2]
+        kp, X_world, pids = cands
     else:
-        kp, pids = descriptor_candidates(feat, store, group_pts, ratio, max_distance)
+        kp, pids = descriptor_candidates(feat, store, group_pts, p.ratio, p.max_distance)
         X_world = store.position[pids]
-    if len(kp) < min_matches:
-        log.debug("verify: %d descriptor matches to %d points (< %d)", len(kp), len(group_pts), min_matches)
+    if len(kp) < p.min_matches:
+        log.debug("verify: %d descriptor matches to %d points (< %d)", len(kp), len(group_pts), p.min_matches)
         return None
-    T_cw: np.ndarray | None = None
-    n_ransac = 0
-    if feat.X_cam is not None:
-        Xc = feat.X_cam[kp]
-        ok = np.all(np.isfinite(Xc), axis=1)
-        if ok.sum() >= max(min_matches // 2, 6):
-            src, dst = Xc[ok], X_world[ok]
-            if mono:
-                # inlier distance relative to the scene depth on the candidate side (scale unknown)
-                d = np.linalg.norm(dst - np.median(dst, axis=0), axis=1)
-                thr = align_threshold_rel * max(float(np.median(d)), 1e-6) * 3.0
-            else:
-                z = np.maximum(1.0, src[:, 2])
-                thr = align_threshold_m * float(np.median(z)) ** 2
-            try:
-                S, inl = align_points(src, dst, with_scale=mono, threshold=thr, seed=seed)
-            except GeometryError:
-                S, inl = None, None
-            if S is not None and inl.sum() >= max(min_matches // 2, 6):
-                scale = float(np.cbrt(np.linalg.det(S[:3, :3]))) if mono else 1.0
-                T_wc = S.copy()
-                T_wc[:3, :3] /= scale
-                U, _, Vt = np.linalg.svd(T_wc[:3, :3])
-                T_wc[:3, :3] = U @ Vt
-                T_cw = inv_se3(T_wc)
-                n_ransac = int(inl.sum())
-                sel = np.flatnonzero(ok)[inl]
-                kp, pids = kp[sel], pids[sel]
-                if refine_ransac:
-                    sig = np.power(scale_factor, feat.octave[kp].astype(float))
-                    ur = None if feat.u_right is None else feat.u_right[kp]
-                    T_cw, inl = refine_pose(T_cw, X_world[sel], feat.uv_undist[kp], camera.K, sig, ur, bf)
-                    log.debug("verify: %d of %d RANSAC inliers consistent after reprojection refinement",
-                              int(inl.sum()), n_ransac)
-                    if inl.sum() < 6:
-                        return None
-                    kp, pids = kp[inl], pids[inl]
-                kp, pids = kp[pids >= 0], pids[pids >= 0]  # refinement works on map points
-    if T_cw is None:
+    ransac = _align_3d3d(feat, kp, X_world, pids, mono, p) if feat.X_cam is not None else None
+    if ransac is not None and p.refine_ransac:
+        ransac = _refine_ransac_pose(feat, camera, ransac, p)
+        if ransac is None:
+            return None
+    if ransac is None:
         if mono and feat.X_cam is not None:
             return None  # monocular loops need the Sim(3) (scale) estimate
-        from vslam.geometry.pnp import solve_pnp
-
-        try:
-            T_cw, inl = solve_pnp(X_world, feat.uv_undist[kp], camera.K, threshold_px=pnp_reproj_px,
-                                  min_inliers=max(min_matches // 2, 6))
-        except GeometryError:
+        ransac = _pnp_ransac(feat, camera, kp, X_world, pids, p)
+        if ransac is None:
             return None
-        n_ransac = int(inl.sum())
-        kp, pids = kp[inl], pids[inl]
-        kp, pids = kp[pids >= 0], pids[pids >= 0]
-    log.debug("verify: %d descriptor matches, %d RANSAC inliers", len(kp), n_ransac)
-    T_cw_ransac = T_cw
-    for radius in (search_radius_px, max(search_radius_px / 2.0, min_search_radius_px)):
-        T_cw, kp, pids = _refine(feat, store, group_pts, camera, T_cw, kp, pids, radius, scale_factor, bf,
-                                 check_distance=not mono, max_distance=guided_max_distance, ratio=guided_ratio)
+    on_map = ransac.pids >= 0  # refinement works on map points
+    ransac.kp, ransac.pids = ransac.kp[on_map], ransac.pids[on_map]
+    log.debug("verify: %d descriptor matches, %d RANSAC inliers", len(ransac.kp), ransac.n_ransac)
+    return _guided_refinement(feat, store, group_pts, camera, ransac, mono, p)
+
+
+def _match_with_extras(feat: Features, store: MapPointStore, group_pts: np.ndarray, extra_X: np.ndarray,
+                       extra_desc: np.ndarray, extra_src: np.ndarray | None,
+                       p: VerifyParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Step 1 with extra candidates: ``(kp_idx, X_world, point_ids)`` with point id -1 for an extra
+    (matched keyframe by keyframe when ``extra_src`` is given), None without descriptors."""
+    cand_X = np.concatenate([store.position[group_pts], extra_X])
+    cand_desc = np.concatenate([store.descriptor[group_pts], extra_desc])
+    cand_ids = np.concatenate([group_pts, np.full(len(extra_X), -1, np.int64)])
+    if feat.descriptors is None or len(feat.descriptors) < 2 or len(cand_desc) < 2:
+        return None
+    if extra_src is None:
+        i1, i2, _ = match_descriptors(feat.descriptors, cand_desc, binary=True, ratio=p.ratio, mutual=True,
+                                      max_distance=p.max_distance)
+        i1, i2 = np.asarray(i1, np.int64), np.asarray(i2, np.int64)
+    else:
+        i1, i2 = _match_per_keyframe(feat, cand_desc, len(group_pts), extra_desc, extra_src, p)
+    return i1, cand_X[i2], cand_ids[i2]
+
+
+def _match_per_keyframe(feat: Features, cand_desc: np.ndarray, n_map: int, extra_desc: np.ndarray,
+                        extra_src: np.ndarray, p: VerifyParams) -> tuple[np.ndarray, np.ndarray]:
+    """Ratio + mutual matching against the map points, then against each source keyframe's extras
+    alone; ``(kp_idx, candidate index)`` of all pairs (extras indexed after the ``n_map`` points)."""
+    parts1, parts2 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    if n_map >= 2:
+        j1, j2, _ = match_descriptors(feat.descriptors, cand_desc[:n_map], binary=True, ratio=p.ratio,
+                                      mutual=True, max_distance=p.max_distance)
+        parts1.append(np.asarray(j1, np.int64))
+        parts2.append(np.asarray(j2, np.int64))
+    for src in np.unique(extra_src):
+        sel = np.flatnonzero(extra_src == src)
+        if len(sel) < 2:
+            continue
+        j1, j2, _ = match_descriptors(feat.descriptors, extra_desc[sel], binary=True, ratio=p.ratio,
+                                      mutual=True, max_distance=p.max_distance)
+        parts1.append(np.asarray(j1, np.int64))
+        parts2.append(n_map + sel[np.asarray(j2, np.int64)])
+    return np.concatenate(parts1), np.concatenate(parts2)
+
+
+def _align_3d3d(feat: Features, kp: np.ndarray, X_world: np.ndarray, pids: np.ndarray, mono: bool,
+                p: VerifyParams) -> _Ransac | None:
+    """Step 2 with 3D points: SE(3) (Sim(3) monocular) RANSAC of ``feat.X_cam[kp]`` onto ``X_world``;
+    None with fewer than ``max(min_matches // 2, 6)`` valid pairs or inliers."""
+    Xc = feat.X_cam[kp]
+    ok = np.all(np.isfinite(Xc), axis=1)
+    if ok.sum() < max(p.min_matches // 2, 6):
+        return None
+    src, dst = Xc[ok], X_world[ok]
+    if mono:
+        # inlier distance relative to the scene depth on the candidate side (scale unknown)
+        d = np.linalg.norm(dst - np.median(dst, axis=0), axis=1)
+        thr = p.align_threshold_rel * max(float(np.median(d)), 1e-6) * 3.0
+    else:
+        z = np.maximum(1.0, src[:, 2])
+        thr = p.align_threshold_m * float(np.median(z)) ** 2
+    try:
+        S, inl = align_points(src, dst, with_scale=mono, threshold=thr, seed=p.seed)
+    except GeometryError:
+        return None
+    if inl.sum() < max(p.min_matches // 2, 6):
+        return None
+    scale = float(np.cbrt(np.linalg.det(S[:3, :3]))) if mono else 1.0
+    T_wc = S.copy()
+    T_wc[:3, :3] /= scale
+    U, _, Vt = np.linalg.svd(T_wc[:3, :3])
+    T_wc[:3, :3] = U @ Vt
+    sel = np.flatnonzero(ok)[inl]
+    return _Ransac(T_cw=inv_se3(T_wc), scale=scale, n_ransac=int(inl.sum()), kp=kp[sel], pids=pids[sel],
+                   X=X_world[sel])
+
+
+def _refine_ransac_pose(feat: Features, camera: PinholeCamera, r: _Ransac, p: VerifyParams) -> _Ransac | None:
+    """The 3D-3D pose refined on its inliers' reprojection errors (:func:`refine_pose`); the pairs
+    failing its chi-square test are dropped, None when fewer than 6 remain."""
+    sig = np.power(p.scale_factor, feat.octave[r.kp].astype(float))
+    ur = None if feat.u_right is None else feat.u_right[r.kp]
+    T_cw, inl = refine_pose(r.T_cw, r.X, feat.uv_undist[r.kp], camera.K, sig, ur, p.bf)
+    log.debug("verify: %d of %d RANSAC inliers consistent after reprojection refinement",
+              int(inl.sum()), r.n_ransac)
+    if inl.sum() < 6:
+        return None
+    return _Ransac(T_cw=T_cw, scale=r.scale, n_ransac=r.n_ransac, kp=r.kp[inl], pids=r.pids[inl], X=r.X[inl])
+
+
+def _pnp_ransac(feat: Features, camera: PinholeCamera, kp: np.ndarray, X_world: np.ndarray, pids: np.ndarray,
+                p: VerifyParams) -> _Ransac | None:
+    """Step 2 without 3D points: PnP RANSAC (:func:`vslam.geometry.pnp.solve_pnp`), None on failure."""
+    from vslam.geometry.pnp import solve_pnp
+
+    try:
+        T_cw, inl = solve_pnp(X_world, feat.uv_undist[kp], camera.K, threshold_px=p.pnp_reproj_px,
+                              min_inliers=max(p.min_matches // 2, 6))
+    except GeometryError:
+        return None
+    return _Ransac(T_cw=T_cw, scale=1.0, n_ransac=int(inl.sum()), kp=kp[inl], pids=pids[inl], X=X_world[inl])
+
+
+def _guided_refinement(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera,
+                       r: _Ransac, mono: bool, p: VerifyParams) -> Verified:
+    """Step 3: two rounds of guided matching + pose refinement from the RANSAC pose; with fewer
+    than 6 map-point pairs left, the RANSAC pose with no map-point inliers."""
+    T_cw, kp, pids = r.T_cw, r.kp, r.pids
+    for radius in (p.search_radius_px, max(p.search_radius_px / 2.0, p.min_search_radius_px)):
+        T_cw, kp, pids = _refine(feat, store, group_pts, camera, T_cw, kp, pids, radius, p.scale_factor, p.bf,
+                                 check_distance=not mono, max_distance=p.guided_max_distance, ratio=p.guided_ratio)
         if len(kp) < 6:  # too few map points to refine: the RANSAC pose, no map-point inliers
-            return Verified(T_world_cam=inv_se3(T_cw_ransac), scale=scale, kp_idx=kp[:0], point_ids=pids[:0],
-                            n_inliers=0, n_ransac=n_ransac)
+            return Verified(T_world_cam=inv_se3(r.T_cw), scale=r.scale, kp_idx=kp[:0], point_ids=pids[:0],
+                            n_inliers=0, n_ransac=r.n_ransac)
     log.debug("verify: %d inliers after guided matching", len(kp))
-    return Verified(T_world_cam=inv_se3(T_cw), scale=scale, kp_idx=kp, point_ids=pids, n_inliers=len(kp),
-                    n_ransac=n_ransac)
+    return Verified(T_world_cam=inv_se3(T_cw), scale=r.scale, kp_idx=kp, point_ids=pids, n_inliers=len(kp),
+                    n_ransac=r.n_ransac)

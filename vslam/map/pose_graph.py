@@ -109,6 +109,39 @@ def optimize_pose_graph(
     t0 = time.perf_counter()
     T_world_cam = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)
     n = len(T_world_cam)
+    graph, values, n_edges = build_pose_graph(T_world_cam, edges, fixed, sim3, config)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.max_iterations)
+    params.setRelativeErrorTol(config.relative_tolerance)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    initial_error = graph.error(values)
+    result = optimizer.optimize()
+    S_out = _read_nodes(result, n, sim3)
+    scales = np.cbrt(np.linalg.det(S_out[:, :3, :3]))
+    T_out = S_out.copy()
+    T_out[:, :3, :3] /= scales[:, None, None]
+    out = PoseGraphResult(
+        T_world_cam=T_out, scales=scales, S_world_cam=S_out, initial_error=float(initial_error),
+        final_error=float(graph.error(result)), iterations=int(optimizer.iterations()),
+        time_s=time.perf_counter() - t0,
+    )
+    LOG.debug("pose graph (%s, %d nodes, %d edges): error %.4g -> %.4g in %d iterations",
+              "Sim3" if sim3 else "SE3", n, n_edges, out.initial_error, out.final_error, out.iterations)
+    return out
+
+
+def build_pose_graph(T_world_cam: np.ndarray, edges: Iterable[Sequence], fixed: Sequence[int], sim3: bool,
+                     config: PoseGraphConfig):
+    """The GTSAM factor graph and initial values of :func:`optimize_pose_graph` (arguments as
+    there, ``T_world_cam (K, 4, 4)``): one ``Pose3`` / ``Similarity3`` value per node, a between
+    factor per edge, a ``NonlinearEquality`` per fixed node. Returns ``(graph, values, n_edges)``.
+
+    Raises:
+        GeometryError: no nodes, NaN/inf poses, fixed indices out of range, a malformed edge, no edges.
+    """
+    import gtsam
+
+    n = len(T_world_cam)
     if n == 0:
         raise GeometryError("pose graph has no nodes")
     if not np.all(np.isfinite(T_world_cam)):
@@ -127,20 +160,7 @@ def optimize_pose_graph(
             values.insert(k, gtsam.Pose3(gtsam.Rot3(U @ Vt), T_world_cam[k, :3, 3]))
     n_edges = 0
     for e in edges:
-        if len(e) not in (3, 4):
-            raise GeometryError(f"pose-graph edge must be (i, j, T_i_j[, information]), got {len(e)} items")
-        i, j, Z = int(e[0]), int(e[1]), np.asarray(e[2], dtype=float)
-        info = e[3] if len(e) == 4 else None
-        if not (0 <= i < n and 0 <= j < n) or i == j:
-            raise GeometryError(f"pose-graph edge ({i}, {j}) references nodes outside [0, {n}) or a self-loop")
-        if Z.shape != (4, 4) or not np.all(np.isfinite(Z)):
-            raise GeometryError(f"pose-graph edge ({i}, {j}) measurement must be a finite 4x4 matrix")
-        model = _noise(info, dim, config)
-        if sim3:
-            graph.add(gtsam.BetweenFactorSimilarity3(i, j, _to_gtsam_sim3(Z), model))
-        else:
-            U, _, Vt = np.linalg.svd(Z[:3, :3])
-            graph.add(gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(gtsam.Rot3(U @ Vt), Z[:3, 3]), model))
+        graph.add(_between_factor(e, n, dim, sim3, config))
         n_edges += 1
     if n_edges == 0:
         raise GeometryError("pose graph has no edges")
@@ -149,29 +169,37 @@ def optimize_pose_graph(
             graph.add(gtsam.NonlinearEqualitySimilarity3(k, values.atSimilarity3(k)))
         else:
             graph.add(gtsam.NonlinearEqualityPose3(k, values.atPose3(k)))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(config.max_iterations)
-    params.setRelativeErrorTol(config.relative_tolerance)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    initial_error = graph.error(values)
-    result = optimizer.optimize()
+    return graph, values, n_edges
+
+
+def _between_factor(e: Sequence, n: int, dim: int, sim3: bool, config: PoseGraphConfig):
+    """The between factor of one edge ``(i, j, T_i_j[, information])`` after checking it."""
+    import gtsam
+
+    if len(e) not in (3, 4):
+        raise GeometryError(f"pose-graph edge must be (i, j, T_i_j[, information]), got {len(e)} items")
+    i, j, Z = int(e[0]), int(e[1]), np.asarray(e[2], dtype=float)
+    info = e[3] if len(e) == 4 else None
+    if not (0 <= i < n and 0 <= j < n) or i == j:
+        raise GeometryError(f"pose-graph edge ({i}, {j}) references nodes outside [0, {n}) or a self-loop")
+    if Z.shape != (4, 4) or not np.all(np.isfinite(Z)):
+        raise GeometryError(f"pose-graph edge ({i}, {j}) measurement must be a finite 4x4 matrix")
+    model = _noise(info, dim, config)
+    if sim3:
+        return gtsam.BetweenFactorSimilarity3(i, j, _to_gtsam_sim3(Z), model)
+    U, _, Vt = np.linalg.svd(Z[:3, :3])
+    return gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(gtsam.Rot3(U @ Vt), Z[:3, 3]), model)
+
+
+def _read_nodes(result, n: int, sim3: bool) -> np.ndarray:
+    """The optimized nodes as ``S_world_cam (n, 4, 4)`` (rigid poses for SE(3))."""
     S_out = np.empty((n, 4, 4))
     for k in range(n):
         if sim3:
             S_out[k] = _from_gtsam_sim3(result.atSimilarity3(k))
         else:
             S_out[k] = result.atPose3(k).matrix()
-    scales = np.cbrt(np.linalg.det(S_out[:, :3, :3]))
-    T_out = S_out.copy()
-    T_out[:, :3, :3] /= scales[:, None, None]
-    out = PoseGraphResult(
-        T_world_cam=T_out, scales=scales, S_world_cam=S_out, initial_error=float(initial_error),
-        final_error=float(graph.error(result)), iterations=int(optimizer.iterations()),
-        time_s=time.perf_counter() - t0,
-    )
-    LOG.debug("pose graph (%s, %d nodes, %d edges): error %.4g -> %.4g in %d iterations",
-              "Sim3" if sim3 else "SE3", n, n_edges, out.initial_error, out.final_error, out.iterations)
-    return out
+    return S_out
 
 
 def correct_points(X_world: np.ndarray, ref_node: np.ndarray, T_world_cam_before: np.ndarray,

@@ -1,0 +1,146 @@
+"""Timestamps: TUM-style ``timestamp field ...`` lists (checked sorted), the TUM ``associate.py``
+matching of two timestamp lists and ground truth interpolated at arbitrary times."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from vslam.datasets.images import require_file
+from vslam.errors import DatasetError
+from vslam.textfile import open_text
+from vslam.trajectory import Trajectory
+
+
+def check_timestamps(ts: np.ndarray, path: str | Path) -> None:
+    """Raise unless ``ts`` is strictly increasing (names the first offending line/position)."""
+    ts = np.asarray(ts, dtype=float)
+    if not np.all(np.isfinite(ts)):
+        raise DatasetError(f"{path}: timestamp {int(np.argmax(~np.isfinite(ts))) + 1} is not a finite number")
+    d = np.diff(ts)
+    if np.any(d == 0):
+        i = int(np.argmax(d == 0))
+        raise DatasetError(f"{path}: duplicate timestamp {ts[i]!r} (entries {i + 1} and {i + 2}); remove one")
+    if np.any(d < 0):
+        i = int(np.argmax(d < 0))
+        raise DatasetError(
+            f"{path}: timestamps are not sorted (entry {i + 2}, {ts[i + 1]!r}, is before {ts[i]!r}); sort the file"
+        )
+
+
+def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> tuple[np.ndarray, list[list[str]]]:
+    """Read a TUM-style list (``timestamp field ...`` per line, ``#`` comments).
+
+    Returns ``(timestamps (N,), rows)`` where ``rows[i]`` are the remaining fields of line i.
+    Timestamps are kept as parsed (not sorted); use :func:`check_timestamps`.
+    """
+    path = require_file(path, what)
+    ts: list[float] = []
+    rows: list[list[str]] = []
+    with open_text(path, DatasetError) as fh:
+        for lineno, line in enumerate(fh, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = line.replace(",", " ").split()
+            if len(parts) < min_columns:
+                raise DatasetError(
+                    f"{path}:{lineno}: expected {min_columns} columns (timestamp filename ...), got {line[:80]!r}"
+                )
+            try:
+                ts.append(float(parts[0]))
+            except ValueError:
+                raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]!r} is not a number") from None
+            rows.append(parts[1:])
+    if not ts:
+        raise DatasetError(f"{path}: the {what} has no entries")
+    return np.array(ts, dtype=float), rows
+
+
+def associate(
+    t_first: np.ndarray, t_second: np.ndarray, offset: float = 0.0, max_difference: float = 0.02
+) -> np.ndarray:
+    """Match two timestamp lists like TUM's ``associate.py``.
+
+    Every candidate pair with ``|t1 - (t2 + offset)| < max_difference`` is sorted by that
+    difference and accepted greedily, each timestamp used at most once (Sturm et al., IROS 2012,
+    ``associate.py``). Returns ``(M, 2)`` index pairs sorted by the first index.
+    """
+    t1 = np.asarray(t_first, dtype=float)
+    t2 = np.asarray(t_second, dtype=float) + offset
+    order2 = np.argsort(t2, kind="stable")
+    t2s = t2[order2]
+    lo = np.searchsorted(t2s, t1 - max_difference, side="left")
+    hi = np.searchsorted(t2s, t1 + max_difference, side="right")
+    counts = hi - lo
+    if counts.sum() == 0:
+        return np.zeros((0, 2), dtype=int)
+    i1 = np.repeat(np.arange(len(t1)), counts)
+    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    j_sorted = starts + np.arange(counts.sum())
+    i2 = order2[j_sorted]
+    diff = np.abs(t1[i1] - t2[i2])
+    keep = diff < max_difference
+    i1, i2, diff = i1[keep], i2[keep], diff[keep]
+    used1 = np.zeros(len(t1), dtype=bool)
+    used2 = np.zeros(len(t2), dtype=bool)
+    pairs = []
+    for k in np.argsort(diff, kind="stable"):
+        a, b = i1[k], i2[k]
+        if not used1[a] and not used2[b]:
+            used1[a] = used2[b] = True
+            pairs.append((a, b))
+    out = np.array(sorted(pairs), dtype=int).reshape(-1, 2)
+    return out
+
+
+def interpolate_poses(
+    gt: Trajectory, t_query: np.ndarray, max_gap: float = 0.1, exact_tol: float = 1e-5
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth poses at ``t_query`` (SLERP rotation, linear translation between neighbours).
+
+    A query within ``exact_tol`` seconds of a GT sample takes that sample; otherwise it needs GT
+    samples on both sides no more than ``max_gap`` seconds apart. Returns
+    ``(T_world_cam (N, 4, 4), valid (N,) bool)``; invalid rows are NaN.
+    """
+    t_query = np.asarray(t_query, dtype=float).reshape(-1)
+    n = len(t_query)
+    T = np.full((n, 4, 4), np.nan)
+    valid = np.zeros(n, dtype=bool)
+    tg = gt.timestamps
+    if len(tg) == 0 or n == 0:
+        return T, valid
+    idx = np.searchsorted(tg, t_query)  # tg[idx-1] < t <= tg[idx]
+    # exact matches (nearest neighbour within exact_tol)
+    left = np.clip(idx - 1, 0, len(tg) - 1)
+    right = np.clip(idx, 0, len(tg) - 1)
+    d_left = np.abs(t_query - tg[left])
+    d_right = np.abs(t_query - tg[right])
+    nearest = np.where(d_left <= d_right, left, right)
+    exact = np.minimum(d_left, d_right) <= exact_tol
+    T[exact] = gt.T_world_cam[nearest[exact]]
+    valid[exact] = True
+    # interpolation between neighbours
+    inside = (~exact) & (idx > 0) & (idx < len(tg))
+    if np.any(inside):
+        i1 = idx[inside]
+        i0 = i1 - 1
+        gap = tg[i1] - tg[i0]
+        ok = gap <= max_gap
+        q_idx = np.flatnonzero(inside)[ok]
+        i0, i1 = i0[ok], i1[ok]
+        if len(q_idx):
+            alpha = (t_query[q_idx] - tg[i0]) / (tg[i1] - tg[i0])
+            R0 = Rotation.from_matrix(gt.T_world_cam[i0, :3, :3])
+            R1 = Rotation.from_matrix(gt.T_world_cam[i1, :3, :3])
+            delta = (R0.inv() * R1).as_rotvec()
+            R = R0 * Rotation.from_rotvec(alpha[:, None] * delta)
+            Ti = np.tile(np.eye(4), (len(q_idx), 1, 1))
+            Ti[:, :3, :3] = R.as_matrix()
+            p0 = gt.T_world_cam[i0, :3, 3]
+            p1 = gt.T_world_cam[i1, :3, 3]
+            Ti[:, :3, 3] = p0 + alpha[:, None] * (p1 - p0)
+            T[q_idx] = Ti
+            valid[q_idx] = True
+    return T, valid
