@@ -158,7 +158,7 @@ def test_slow_consumer_gets_the_newest_frame_and_drops_count(monkeypatch, camera
 
 
 def test_slow_tracker_drops_frames_in_the_run_stats(monkeypatch, camera_yaml, tmp_path):
-    """The same camera at 30 fps with a tracker slowed to >= 50 ms a frame (a slow viewer): about
+    """The camera at 15 fps with a tracker slowed to >= 150 ms a frame (a slow viewer): about
     one frame in two or three reaches it, the rest are counted in stats.json; the poses it made
     still fit (ATE measured 0.01-0.04 m; larger frame gaps under CPU load)."""
     _fake(monkeypatch, fps=15.0)  # a slow consumer (150 ms a frame), with time to track on a loaded machine
