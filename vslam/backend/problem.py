@@ -119,15 +119,19 @@ class BAProblem:
 
     def kf_index(self, ids: np.ndarray) -> np.ndarray:
         """Rows of ``T_world_cam`` for keyframe ``ids``."""
-        if self._rows is not None and ids is self._rows[0] and ids is self.obs_kf:
-            return self._rows[2].copy()
-        return _index_of(self.kf_ids, np.asarray(ids, np.int64).reshape(-1), "keyframe", self._kf_order)
+        rows = getattr(self, "_rows", None)  # absent on an unpickled problem: resolved afresh
+        if rows is not None and ids is rows[0] and ids is self.obs_kf:
+            return rows[2].copy()
+        order = getattr(self, "_kf_order", None) if hasattr(self, "_kf_order") else _sort_order(self.kf_ids)
+        return _index_of(self.kf_ids, np.asarray(ids, np.int64).reshape(-1), "keyframe", order)
 
     def pt_index(self, ids: np.ndarray) -> np.ndarray:
         """Rows of ``X_world`` for point ``ids``."""
-        if self._rows is not None and ids is self._rows[1] and ids is self.obs_pt:
-            return self._rows[3].copy()
-        return _index_of(self.pt_ids, np.asarray(ids, np.int64).reshape(-1), "point", self._pt_order)
+        rows = getattr(self, "_rows", None)
+        if rows is not None and ids is rows[1] and ids is self.obs_pt:
+            return rows[3].copy()
+        order = getattr(self, "_pt_order", None) if hasattr(self, "_pt_order") else _sort_order(self.pt_ids)
+        return _index_of(self.pt_ids, np.asarray(ids, np.int64).reshape(-1), "point", order)
 
 
 @dataclass

@@ -71,7 +71,8 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
               fx, fy, with_cams, cam_row, n_p, dense, buf, Hcp, rows, Hpp, gp):  # pragma: no cover - compiled
     """Per-observation Gauss-Newton blocks (see ``schur_lm._linearize``).
 
-    Accumulates ``Hpp (3, 3, P)`` and ``gp (3, P)`` (zeroed by the caller) in observation order;
+    Fills ``Hpp (3, 3, P)`` and ``gp (3, P)``, summed over each point's observations in observation
+    order (as ``np.bincount``);
     when ``with_cams`` fills ``rows (33, M)`` (the per-camera summands) and writes ``Hcp`` either
     into the dense coupling buffer ``buf`` (row ``6 cam_row + a``, column ``j P + p``) or into
     ``Hcp (6, 3, M)``.
@@ -80,6 +81,7 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
     A = np.empty((3, 3))
     B = np.empty((3, 3))
     H = np.empty((6, 3))
+    acc = np.zeros((n_p, 12))  # Hpp (9) and gp (3) of each point, summed in observation order
     for m in range(m_all):
         c = cam[m]
         p = pt[m]
@@ -139,14 +141,14 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
                 s = s + A[i, 1] * R[c, 1, j]
                 B[i, j] = s + A[i, 2] * R[c, 2, j]
         # Hpp += R^T B, gp += R^T b (einsum "lim,ljm->ijm" / "lim,lm->im", then bincount)
-        for i in range(3):
+        for i in range(3):  # point-major accumulators (one cache line per point); transposed below
             for j in range(3):
                 s = 0.0 + R[c, 0, i] * B[0, j]
                 s = s + R[c, 1, i] * B[1, j]
-                Hpp[i, j, p] += s + R[c, 2, i] * B[2, j]
+                acc[p, 3 * i + j] += s + R[c, 2, i] * B[2, j]
             s = 0.0 + R[c, 0, i] * b0
             s = s + R[c, 1, i] * b1
-            gp[i, p] += s + R[c, 2, i] * b2
+            acc[p, 9 + i] += s + R[c, 2, i] * b2
         if not with_cams:
             continue
         # rows: A (9), C = [X]_x A (9), D = -C [X]_x (9), b (3), X x b (3)
@@ -187,6 +189,11 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
             for a in range(6):
                 for j in range(3):
                     Hcp[a, j, m] = H[a, j]
+    for p in range(n_p):
+        for i in range(3):
+            for j in range(3):
+                Hpp[i, j, p] = acc[p, 3 * i + j]
+            gp[i, p] = acc[p, 9 + i]
 
 
 @njit(cache=True, nogil=True)

@@ -284,8 +284,8 @@ def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     no ``(M, 6, 6)`` stacked matmuls.
     """
     m = len(chi2)
-    Hpp = np.zeros((3, 3, st.n_p))
-    gp = np.zeros((3, st.n_p))
+    Hpp = np.empty((3, 3, st.n_p))
+    gp = np.empty((3, st.n_p))
     with_cams = st.n_c > 0
     rows = np.empty((33, m) if with_cams else (33, 0))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6)
     Hcp = np.empty((6, 3, m) if with_cams and not st.dense else (6, 3, 0))
