@@ -202,3 +202,17 @@ def test_problem_validation_errors():
         LocalBAConfig(solver="ceres")
     with pytest.raises(ConfigError):
         GlobalBAConfig(iterations_robust=0, iterations_refine=0)
+
+
+def test_problem_index_lookup_with_unsorted_ids_and_cached_observation_rows():
+    problem, _ = make_ba_problem(sensor="stereo", n_points=50, seed=8)
+    # reversed ids: the sorted fast path does not apply; rows must still follow the given order
+    rev_pt = problem.pt_ids[::-1].copy()
+    p = dataclasses.replace(problem, pt_ids=rev_pt, X_world=problem.X_world[::-1].copy())
+    rows = p.pt_index(p.obs_pt)
+    np.testing.assert_array_equal(p.pt_ids[rows], p.obs_pt)
+    np.testing.assert_array_equal(p.pt_index(p.obs_pt.copy()), rows)  # a fresh array, not the cached rows
+    np.testing.assert_array_equal(p.kf_ids[p.kf_index(p.obs_kf)], p.obs_kf)
+    np.testing.assert_array_equal(p.pt_index(rev_pt[[3, 0]]), [3, 0])
+    with pytest.raises(GeometryError, match="unknown point"):
+        p.pt_index(np.array([10**6]))

@@ -1,6 +1,8 @@
 """Dense RGB-D alignments as local-BA constraints (vslam.backend.dense_links)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -78,7 +80,7 @@ def test_links_to_keyframes_outside_the_problem_or_between_fixed_ones_are_ignore
     problem, _, links = _two_keyframes()
     other = {7: DenseLink(7, 1, np.eye(4), np.array([[320.0, 240.0]]), np.array([2.0]))}
     assert add_dense_links(problem, other) == (problem, 0)
-    fixed = BAProblem(**{**problem.__dict__, "fixed_kf_ids": np.array([0, 1])})
+    fixed = dataclasses.replace(problem, fixed_kf_ids=np.array([0, 1]))
     assert add_dense_links(fixed, links)[1] == 0
 
 

@@ -17,19 +17,27 @@ from vslam.errors import GeometryError
 from vslam.geometry.camera import PinholeCamera
 
 
-def _index_of(ids: np.ndarray, query: np.ndarray, what: str) -> np.ndarray:
-    """Position of each ``query`` id in ``ids`` (vectorized); raises if one is unknown."""
+def _index_of(ids: np.ndarray, query: np.ndarray, what: str, order: np.ndarray | None = None) -> np.ndarray:
+    """Position of each ``query`` id in ``ids`` (vectorized); raises if one is unknown.
+
+    ``order``: ``argsort(ids)`` when the caller has it, ``None`` when ``ids`` is already sorted.
+    """
     if len(query) == 0:
         return np.zeros(0, np.int64)
     if len(ids) == 0:
         raise GeometryError(f"BA problem references {what} ids {query[:5].tolist()} but has no {what}s")
-    order = np.argsort(ids, kind="stable")
-    pos = np.clip(np.searchsorted(ids[order], query), 0, len(ids) - 1)
-    idx = order[pos]
+    sorted_ids = ids if order is None else ids[order]
+    pos = np.clip(np.searchsorted(sorted_ids, query), 0, len(ids) - 1)
+    idx = pos if order is None else order[pos]
     bad = ids[idx] != query
     if np.any(bad):
         raise GeometryError(f"BA problem references unknown {what} ids, e.g. {query[bad][:5].tolist()}")
     return idx
+
+
+def _sort_order(ids: np.ndarray) -> np.ndarray | None:
+    """``argsort(ids)``, or ``None`` when ``ids`` is already strictly increasing (the usual case)."""
+    return None if np.all(ids[1:] > ids[:-1]) else np.argsort(ids, kind="stable")
 
 
 @dataclass
@@ -96,20 +104,34 @@ class BAProblem:
             raise GeometryError("BA problem: an observation has both obs_u_right and obs_depth; give one")
         if np.any(np.isfinite(self.obs_u_right)) and not (self.camera.baseline and self.camera.baseline > 0):
             raise GeometryError("BA problem: obs_u_right given but the camera has no stereo baseline")
+        self._kf_order, self._pt_order = _sort_order(self.kf_ids), _sort_order(self.pt_ids)
+        self._rows = None
         self.kf_index(self.fixed_kf_ids)
-        self.kf_index(self.obs_kf)
-        self.pt_index(self.obs_pt)
-        pairs = self.kf_index(self.obs_kf) * max(p, 1) + self.pt_index(self.obs_pt)
-        if len(np.unique(pairs)) != m:
+        # the rows of every observation, resolved once (the solver and the write-back ask again)
+        rows = (self.kf_index(self.obs_kf), self.pt_index(self.obs_pt))
+        self._rows = (self.obs_kf, self.obs_pt, rows[0], rows[1])
+        pairs = rows[0] * max(p, 1) + rows[1]
+        # a count per (keyframe, point) cell when that table is small (local BA), else a sort
+        twice = (np.bincount(pairs, minlength=k * p).max(initial=0) > 1 if k * p <= 8 * m + (1 << 16)
+                 else len(np.unique(pairs)) != m)
+        if twice:
             raise GeometryError("BA problem: a point is observed twice by the same keyframe; keep one observation")
 
     def kf_index(self, ids: np.ndarray) -> np.ndarray:
         """Rows of ``T_world_cam`` for keyframe ``ids``."""
-        return _index_of(self.kf_ids, np.asarray(ids, np.int64).reshape(-1), "keyframe")
+        rows = getattr(self, "_rows", None)  # absent on an unpickled problem: resolved afresh
+        if rows is not None and ids is rows[0] and ids is self.obs_kf:
+            return rows[2].copy()
+        order = getattr(self, "_kf_order", None) if hasattr(self, "_kf_order") else _sort_order(self.kf_ids)
+        return _index_of(self.kf_ids, np.asarray(ids, np.int64).reshape(-1), "keyframe", order)
 
     def pt_index(self, ids: np.ndarray) -> np.ndarray:
         """Rows of ``X_world`` for point ``ids``."""
-        return _index_of(self.pt_ids, np.asarray(ids, np.int64).reshape(-1), "point")
+        rows = getattr(self, "_rows", None)
+        if rows is not None and ids is rows[1] and ids is self.obs_pt:
+            return rows[3].copy()
+        order = getattr(self, "_pt_order", None) if hasattr(self, "_pt_order") else _sort_order(self.pt_ids)
+        return _index_of(self.pt_ids, np.asarray(ids, np.int64).reshape(-1), "point", order)
 
 
 @dataclass

@@ -22,8 +22,10 @@ Parametrization: the solver works on ``T_cam_world = (R, t)``; a step ``delta = 
 ``(u, v, u_right)`` with ``u = fx x/z + cx``, ``v = fy y/z + cy``, ``u_right = u - fx b / z``
 (rectified stereo, or RGB-D with a virtual baseline); monocular rows carry zero weight on ``u_right``.
 
-Implementation notes: per-observation quantities are component-major ``(a, b, M)`` arrays (each row
-a contiguous ``(M,)`` vector) contracted with ``einsum``; observations are sorted by camera so camera
+Implementation notes: the per-observation work (prediction, Jacobian products, point sums, the
+coupling ``W`` and ``W blockdiag(V)``) is one compiled loop each (:mod:`vslam.backend.schur_kernels`,
+numba, the NumPy expressions' exact operation order: bit-identical results, ~30 % less CPU per BA);
+per-observation outputs are component-major ``(a, M)`` rows; observations are sorted by camera so camera
 sums are one ``reduceat``. The coupling ``W`` is a dense array for local BA (Schur complement = one
 GEMM) and BSR block-sparse for large global BA. BLAS is held to one thread during a solve
 (threadpoolctl; process-wide while it runs): on a busy machine threaded GEMMs were 30x slower.
@@ -36,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.sparse
+
+from vslam.backend import schur_kernels
 
 try:  # BLAS threads on a busy 2-core machine make the 60 x 9000 GEMM 30x slower; one thread is best
     from threadpoolctl import ThreadpoolController
@@ -128,40 +132,25 @@ def _inv3(A: np.ndarray) -> np.ndarray:
     return co
 
 
-def _cross_rows(x: np.ndarray, y: np.ndarray, z: np.ndarray, M: np.ndarray, out: np.ndarray) -> None:
-    """``out = [X]_x M`` for component-major ``M (3, ..., N)``: row 0 = y M2 - z M1, row 1 = z M0 - x M2,
-    row 2 = x M1 - y M0 (each column of ``M`` crossed with ``X``)."""
-    np.subtract(y * M[2], z * M[1], out=out[0])
-    np.subtract(z * M[0], x * M[2], out=out[1])
-    np.subtract(x * M[1], y * M[0], out=out[2])
-
-
 def _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth):
-    """Residuals ``r (3, M)`` (measurement minus prediction), ``chi2 (M,)``, ``X_cam (3, M)`` and the
-    gathered rotations ``R (3, 3, M)``; all component-major so every row is a contiguous ``(M,)``."""
-    # np.take keeps the (a, b, M) result C-contiguous (fancy indexing on the last axis does not)
-    Rm = np.take(np.ascontiguousarray(R_cam_world.transpose(1, 2, 0)), obs.cam, axis=2)
-    Xw = np.take(np.ascontiguousarray(X_world.T), obs.pt, axis=1)
-    X_cam = np.einsum("ijm,jm->im", Rm, Xw)
-    X_cam += np.take(np.ascontiguousarray(t_cam_world.T), obs.cam, axis=1)
-    z = X_cam[2]
-    ok = z > min_depth
-    inv_z = 1.0 / np.where(ok, z, 1.0)
-    u = intr.fx * X_cam[0] * inv_z + intr.cx
-    r = np.empty((3, len(z)))
-    np.subtract(obs.meas_T[0], u, out=r[0])
-    np.subtract(obs.meas_T[1], intr.fy * X_cam[1] * inv_z + intr.cy, out=r[1])
-    disp = intr.fx * obs.baseline * inv_z
-    r2 = obs.meas_T[2] - (u - disp)
-    if obs.any_disparity:
-        r2 = np.where(obs.disparity, (obs.meas_T[0] - obs.meas_T[2]) - disp, r2)
-    r[2] = np.where(obs.stereo, r2, 0.0)
-    if obs.uniform_info:
-        chi2 = obs.info * np.einsum("im,im->m", r, r)
-    else:
-        chi2 = obs.info * (r[0] * r[0] + r[1] * r[1]) + obs.info_d * (r[2] * r[2])
-    chi2[~ok] = np.inf
-    return r, chi2, X_cam, Rm
+    """Residuals ``r (3, M)`` (measurement minus prediction), ``chi2 (M,)`` and ``X_cam (3, M)``, all
+    component-major so every row is a contiguous ``(M,)`` (compiled: :func:`schur_kernels.predict`).
+
+    ``X_cam = R X_world + t``, ``u = fx x / z + cx``, ``v = fy y / z + cy``, third residual
+    ``u_right - (u - fx b / z)`` (or the disparity ``(u - u_right) - fx b / z``), zero when mono;
+    ``chi2 = info r^T r`` (``info_d`` on the third row when given), ``inf`` where ``z <= min_depth``.
+    """
+    m = len(obs.cam)
+    r = np.empty((3, m))
+    chi2 = np.empty(m)
+    X_cam = np.empty((3, m))
+    schur_kernels.predict(
+        np.ascontiguousarray(R_cam_world, dtype=float), np.ascontiguousarray(t_cam_world, dtype=float),
+        np.ascontiguousarray(X_world, dtype=float), obs.cam, obs.pt, obs.meas_T, obs.baseline, obs.stereo,
+        obs.disparity, obs.any_disparity, obs.info, obs.info_d, obs.uniform_info, float(intr.fx), float(intr.fy),
+        float(intr.cx), float(intr.cy), float(min_depth), r, chi2, X_cam,
+    )
+    return r, chi2, X_cam
 
 
 def residuals(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray, obs: Observations,
@@ -170,7 +159,7 @@ def residuals(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndar
 
     Observations with the point closer than ``min_depth`` get ``chi2 = inf``.
     """
-    r, chi2, X_cam, _ = _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth)
+    r, chi2, X_cam = _predict(R_cam_world, t_cam_world, X_world, obs, intr, min_depth)
     return r.T, chi2, X_cam.T
 
 
@@ -220,15 +209,13 @@ class _Structure:
         self.shape_W = (6 * n_var_cams, 3 * n_points)
         entries = self.shape_W[0] * self.shape_W[1]
         self.dense = entries <= _DENSE_LIMIT and entries * self.shape_W[0] <= _DENSE_GEMM_LIMIT
+        # row block of each observation's camera in the dense W; fixed cameras write to a discarded block
+        self.cam_row = np.where(var >= 0, var, n_var_cams)
         if self.dense:
-            ncol = 3 * n_points
-            cam_row = np.where(var >= 0, var, n_var_cams)  # fixed cameras write to a discarded row block
-            base = 6 * cam_row * ncol + obs.pt
-            i = np.arange(6)[:, None, None]
-            j = np.arange(3)[None, :, None]
-            self.flat = (base[None, None, :] + i * ncol + j * n_points).reshape(-1)  # (6, 3, M) order
-            self._buf = np.zeros((6 * (n_var_cams + 1), ncol))
+            self.buf = np.zeros((6 * (n_var_cams + 1), 3 * n_points))
+            self._ybuf = np.zeros((6 * n_var_cams, 3 * n_points))  # W blockdiag(V); zero off the observed blocks
         else:
+            self.buf = np.zeros((0, 0))
             self.order_w = np.lexsort((self.pf, self.cf))
             self.indptr_w = np.concatenate([[0], np.cumsum(np.bincount(self.cf, minlength=n_var_cams))])
             self.order_t = np.lexsort((self.cf, self.pf))
@@ -242,10 +229,6 @@ class _Structure:
         out[self.seg_var[keep]] = seg[:, keep].T
         return out
 
-    def pt_sum(self, v: np.ndarray) -> np.ndarray:
-        """Per point sums of ``(k, M)`` rows -> ``(k, P)``."""
-        return np.stack([np.bincount(self.pt, weights=row, minlength=self.n_p) for row in v])
-
     def to_cols(self, g: np.ndarray) -> np.ndarray:
         """A ``(3, P)`` point vector in the column order of ``W``."""
         return g.reshape(-1) if self.dense else g.T.reshape(-1)
@@ -255,17 +238,18 @@ class _Structure:
         return v.reshape(3, -1) if self.dense else v.reshape(-1, 3).T
 
     def coupling(self, Hcp: np.ndarray):
-        """``W`` from the per-observation blocks ``Hcp (6, 3, M)`` (dense array or :class:`_BlockW`)."""
+        """``W``: the dense buffer the linearization wrote, or :class:`_BlockW` from the per-observation
+        blocks ``Hcp (6, 3, M)``."""
         if self.dense:
-            self._buf.reshape(-1)[self.flat] = Hcp.reshape(-1)
-            return self._buf[: self.shape_W[0]]
+            return self.buf[: self.shape_W[0]]
         return _BlockW(self, np.ascontiguousarray(np.take(Hcp, self.free, axis=2).transpose(2, 0, 1)))
 
     def times_blockdiag(self, W, V: np.ndarray):
         """``Y = W @ blockdiag(V)`` for the point blocks ``V (3, 3, P)``."""
-        if self.dense:  # Y[:, k, p] = sum_j W[:, j, p] V[j, k, p]
-            W3 = W.reshape(W.shape[0], 3, self.n_p)
-            return np.einsum("ajp,jkp->akp", W3, V).reshape(W.shape)
+        if self.dense:  # Y[:, k, p] = sum_j W[:, j, p] V[j, k, p], at the observed blocks only
+            schur_kernels.times_blockdiag(W, np.ascontiguousarray(V), self.free, self.cam_row, self.pt, self.n_p,
+                                          self._ybuf)
+            return self._ybuf
         Yb = W.blocks @ np.take(V, self.pf, axis=2).transpose(2, 0, 1)
         return scipy.sparse.bsr_matrix((Yb[self.order_w], self.pf[self.order_w], self.indptr_w), shape=self.shape_W)
 
@@ -288,65 +272,30 @@ class LMResult:
     final_cost: float
 
 
-def _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st):
+def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     """Gauss-Newton blocks ``Hcc (n_c,6,6), gc (6 n_c,), W, Hpp (3,3,P), gp (3,P)``.
 
     With ``Jh = d(u, v, u_r)/d X_cam``, ``A = Jh^T W Jh`` and ``b = Jh^T W r`` per observation, the point
     Jacobian is ``Jh R`` and the camera Jacobian ``Jh G`` with ``G = [I, -[X_cam]_x]``, so
     ``Hpp = R^T A R``, ``Hcp = G^T A R = [A R; [X]_x A R]``, ``Hcc = [[A, C^T], [C, -C [X]_x]]`` with
-    ``C = [X]_x A``, ``gp = R^T b`` and ``gc = [b; X x b]``. Everything is a component-major
-    ``(a, b, M)`` array contracted with ``einsum`` (``Jh`` has six non-zeros, written out), and the
-    sums over observations are sparse products; no ``(M, 6, 6)`` stacked matmuls.
+    ``C = [X]_x A``, ``gp = R^T b`` and ``gc = [b; X x b]`` (``Jh`` has six non-zeros, written out).
+    The per-observation products and the point sums are one compiled loop
+    (:func:`schur_kernels.linearize`); the camera sums one ``reduceat`` over its ``(33, M)`` summands;
+    no ``(M, 6, 6)`` stacked matmuls.
     """
-    ok = np.isfinite(chi2)
-    w = w_rows * ok
-    if huber is not None:
-        e = np.sqrt(np.where(ok, chi2, 0.0))
-        w *= np.where(e <= huber, 1.0, huber / np.maximum(e, 1e-12))
-    w0, w1, w2 = w
-    x, y = X_cam[0], X_cam[1]
-    inv_z = 1.0 / np.where(ok, X_cam[2], 1.0)
-    ja = intr.fx * inv_z
-    jb = intr.fy * inv_z
-    c0 = -ja * x * inv_z
-    c1 = -jb * y * inv_z
-    # third row: u_right = fx (x - b) / z + cx has d/dX = (ja, 0, c2); the disparity fx b / z has (0, 0, c2)
-    if obs.any_disparity:
-        k2 = np.where(obs.disparity, 0.0, ja)
-        c2 = -ja * np.where(obs.disparity, obs.baseline, x - obs.baseline) * inv_z
-    else:
-        k2 = ja
-        c2 = -ja * (x - obs.baseline) * inv_z
-    w0c0, w1c1, w2c2 = w0 * c0, w1 * c1, w2 * c2
-    m = len(x)
-    A = np.empty((3, 3, m))
-    A[0, 0] = ja * ja * w0 + k2 * k2 * w2
-    A[0, 1] = A[1, 0] = 0.0
-    A[0, 2] = A[2, 0] = ja * w0c0 + k2 * w2c2
-    A[1, 1] = jb * jb * w1
-    A[1, 2] = A[2, 1] = jb * w1c1
-    A[2, 2] = w0c0 * c0 + w1c1 * c1 + w2c2 * c2
-    r0, r1, r2 = r
-    b = np.empty((3, m))
-    b[0] = ja * w0 * r0 + k2 * w2 * r2
-    b[1] = jb * w1 * r1
-    b[2] = w0c0 * r0 + w1c1 * r1 + w2c2 * r2
-    B = np.einsum("ilm,ljm->ijm", A, Rm)
-    Hpp = st.pt_sum(np.einsum("lim,ljm->ijm", Rm, B).reshape(9, m)).reshape(3, 3, -1)
-    gp = st.pt_sum(np.einsum("lim,lm->im", Rm, b))
-    if st.n_c == 0:
+    m = len(chi2)
+    Hpp = np.empty((3, 3, st.n_p))
+    gp = np.empty((3, st.n_p))
+    with_cams = st.n_c > 0
+    rows = np.empty((33, m) if with_cams else (33, 0))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6)
+    Hcp = np.empty((6, 3, m) if with_cams and not st.dense else (6, 3, 0))
+    schur_kernels.linearize(
+        np.ascontiguousarray(R, dtype=float), obs.cam, obs.pt, X_cam, r, chi2, w_rows, huber is not None,
+        huber if huber is not None else chi2, obs.baseline, obs.disparity, obs.any_disparity, float(intr.fx),
+        float(intr.fy), with_cams, st.cam_row, st.n_p, st.dense, st.buf, Hcp, rows, Hpp, gp,
+    )
+    if not with_cams:
         return None, None, None, Hpp, gp
-    x, y, z = X_cam
-    rows = np.empty((33, m))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6): summed per camera in one pass
-    rows[:9] = A.reshape(9, m)
-    _cross_rows(x, y, z, A, rows[9:18].reshape(3, 3, m))
-    C = rows[9:18].reshape(3, 3, m)
-    D = rows[18:27].reshape(3, 3, m)  # -C [X]_x: column 0 = C2 y - C1 z, 1 = C0 z - C2 x, 2 = C1 x - C0 y
-    np.subtract(C[:, 2] * y, C[:, 1] * z, out=D[:, 0])
-    np.subtract(C[:, 0] * z, C[:, 2] * x, out=D[:, 1])
-    np.subtract(C[:, 1] * x, C[:, 0] * y, out=D[:, 2])
-    rows[27:30] = b
-    _cross_rows(x, y, z, b, rows[30:33])
     sums = st.cam_sum(rows)
     Hcc = np.empty((st.n_c, 6, 6))
     Hcc[:, :3, :3] = sums[:, :9].reshape(-1, 3, 3)
@@ -354,9 +303,6 @@ def _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     Hcc[:, :3, 3:] = np.transpose(Hcc[:, 3:, :3], (0, 2, 1))
     Hcc[:, 3:, 3:] = sums[:, 18:27].reshape(-1, 3, 3)
     gc = sums[:, 27:33].reshape(-1)
-    Hcp = np.empty((6, 3, m))
-    Hcp[:3] = B
-    _cross_rows(x, y, z, B, Hcp[3:])
     return Hcc, gc, st.coupling(Hcp), Hpp, gp
 
 
@@ -418,13 +364,13 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
     act = active.astype(float) * obs.info
     w_rows = np.stack([act, act, act * obs.stereo if obs.uniform_info else active * obs.info_d * obs.stereo])
     lam = lambda_initial
-    r, chi2, X_cam, Rm = _predict(R, t, X, obs, intr, min_depth)
+    r, chi2, X_cam = _predict(R, t, X, obs, intr, min_depth)
     cost = _robust_cost(np.where(np.isfinite(chi2), chi2, 0.0), active, huber)
     initial_cost = cost
     iterations = 0
     for _ in range(max_iterations):
         iterations += 1
-        Hcc, gc, W, Hpp, gp = _linearize(Rm, X_cam, r, chi2, w_rows, huber, obs, intr, st)
+        Hcc, gc, W, Hpp, gp = _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st)
         while True:
             dc, dp = _solve_damped(Hcc, gc, W, Hpp, gp, lam, st)
             R_new, t_new = R.copy(), t.copy()
@@ -432,7 +378,7 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
             R_new[var_rows] = dR @ R[var_rows]
             t_new[var_rows] = np.einsum("kij,kj->ki", dR, t[var_rows]) + dc[cam_var[var_rows], :3]
             X_new = X + dp.T
-            r_new, chi2_new, X_cam_new, Rm_new = _predict(R_new, t_new, X_new, obs, intr, min_depth)
+            r_new, chi2_new, X_cam_new = _predict(R_new, t_new, X_new, obs, intr, min_depth)
             # a point pushed behind a camera must not look like a cost decrease
             c_eval = np.where(np.isfinite(chi2_new), chi2_new, 1e6 + 10.0 * np.where(np.isfinite(chi2), chi2, 0.0))
             new_cost = _robust_cost(c_eval, active, huber)
@@ -444,7 +390,7 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
                 return LMResult(R, t, X, iterations, initial_cost, cost)
         decrease = cost - new_cost
         LOG.debug("LM iteration %d: cost %.6g -> %.6g (lambda %.1e)", iterations, cost, new_cost, lam)
-        R, t, X, r, chi2, X_cam, Rm, cost = R_new, t_new, X_new, r_new, chi2_new, X_cam_new, Rm_new, new_cost
+        R, t, X, r, chi2, X_cam, cost = R_new, t_new, X_new, r_new, chi2_new, X_cam_new, new_cost
         lam = max(lam / 10.0, 1e-12)
         if decrease <= relative_tolerance * max(cost + decrease, 1e-12):
             break
