@@ -76,7 +76,7 @@ class System:
         self.map = Map()
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
-        self._init_backend(getattr(config, "backend", None), camera, sensor, feat)
+        self._init_backend(getattr(config, "backend", None), camera, sensor, feat, fcfg)
         if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense.links)
             self.local_mapper.dense_links = self.tracker.dense_links
         self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
@@ -102,24 +102,31 @@ class System:
             cb(kf)
 
     # ------------------------------------------------------------------ backend (issue 5)
-    def _init_backend(self, backend_cfg: Any, camera: PinholeCamera, sensor: str, feat: FeatureConfig) -> None:
-        """``graph``: a :class:`LocalMapper` on the keyframe hook (local BA, culling, final BA);
-        ``ekf``: a :class:`FilterBackend` on every tracked pose. No backend without a root config."""
+    def _init_backend(self, backend_cfg: Any, camera: PinholeCamera, sensor: str, feat: FeatureConfig,
+                      fcfg: FrontendConfig) -> None:
+        """``graph``: a :class:`LocalMapper` on the keyframe hook (new points, culling, local BA,
+        final BA); ``ekf``: a :class:`FilterBackend` on every tracked pose. Without a graph backend
+        (no root config, or ``ekf``) a minimal mapper still creates monocular points and culls
+        (:class:`vslam.map.new_points.KeyframeMapping`)."""
         from vslam.backend.filter_backend import FilterBackend
         from vslam.backend.local_mapping import LocalMapper
+        from vslam.frontend.keyframes import mapping_params
+        from vslam.map.new_points import KeyframeMapping
 
         self._backend_cfg = backend_cfg
         self._map_lock = threading.RLock()  # tracking holds it; realtime local mapping takes it to edit the map
         self.local_mapper: LocalMapper | None = None
         self.filter_backend: FilterBackend | None = None
-        if backend_cfg is None:
-            return
-        if backend_cfg.type == "ekf":
-            self.filter_backend = FilterBackend(backend_cfg.ekf, camera, self.map)
-        else:
-            self.local_mapper = LocalMapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock)
+        params = mapping_params(fcfg, feat, camera.K)
+        if backend_cfg is not None and backend_cfg.type != "ekf":
+            self.local_mapper = LocalMapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock,
+                                            new_points=params)
             self.add_keyframe_listener(self.local_mapper.on_keyframe)
             self.local_mapper.correction_listeners.append(self._on_local_ba_correction)
+            return
+        self.add_keyframe_listener(KeyframeMapping(self.map, params).on_keyframe)
+        if backend_cfg is not None:
+            self.filter_backend = FilterBackend(backend_cfg.ekf, camera, self.map)
 
     def _on_local_ba_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """Local BA moved the newest keyframe: move the tracker's last poses with it (as for loops)."""
@@ -145,16 +152,11 @@ class System:
         self.add_keyframe_listener(self.loop_closer.on_keyframe)
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
                                        loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
-        self.tracker.relocalizer = self.relocalizer
+        self.tracker.set_relocalizer(self.relocalizer)
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
-        D = T_world_kf_after @ inv_se3(T_world_kf_before)
-        mm = self.tracker.motion_model
-        if mm.T_world_last is not None:
-            mm.T_world_last = D @ mm.T_world_last
-        if self.tracker.T_world_last_good is not None:
-            self.tracker.T_world_last_good = D @ self.tracker.T_world_last_good
+        self.tracker.apply_correction(T_world_kf_after @ inv_se3(T_world_kf_before))
 
     # ------------------------------------------------------------------ streaming
     def prepare(self, frame: Frame) -> None:

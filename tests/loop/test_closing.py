@@ -22,7 +22,7 @@ def loop_frames() -> list:
 
 
 def _drift_injector(system: System, deg: float):
-    """Keyframe listener (runs first) rotating every new keyframe and the points it created by
+    """Keyframe listener (runs right after local mapping created the keyframe's points) rotating every new keyframe and the points it created by
     ``deg`` about the vertical through its centre (plus a small vertical offset): a drift of the
     kind visual odometry accumulates, which the following frames inherit."""
     a = np.radians(deg)
@@ -51,7 +51,7 @@ def _run(frames, sensor: str, overrides: list[str], drift_deg: float = 0.0):
     system = System(cfg, frames[0].camera, sensor=sensor)
     before: dict[int, np.ndarray] = {}  # pose of each loop's query keyframe just before its correction
     if drift_deg:
-        system._kf_listeners.insert(0, _drift_injector(system, drift_deg))
+        system._kf_listeners.insert(1, _drift_injector(system, drift_deg))  # after point creation
     system.corrections = []  # per loop: (keyframe poses before, just after the essential graph)
     if system.loop_closer is not None:
         closer = system.loop_closer

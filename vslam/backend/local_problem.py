@@ -1,0 +1,194 @@
+"""The local BA problem around a new keyframe: the window of optimized keyframes, the constant
+keyframes that fix the gauge, and the observations of their points (see
+:mod:`vslam.backend.local_mapping`, steps 1-2)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam.backend.config import BackendConfig
+from vslam.backend.problem import BAProblem
+from vslam.geometry.camera import PinholeCamera
+from vslam.map.keyframe import KeyFrame
+from vslam.map.map import Map
+
+
+@dataclass
+class ProblemContext:
+    """What :meth:`LocalMapper._apply` needs besides the problem: keypoint index of each observation,
+    which keyframes were constant, and the store size (to detect a compaction in between)."""
+
+    obs_idx: np.ndarray
+    fixed: np.ndarray
+    n_rows: int
+    new_kf: int
+    left_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # monocular points kept out: (pt, kf, uv) per observation
+
+
+def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray, n_points: int) -> np.ndarray:
+    """Per point, the largest angle (degrees) between its first observation's viewing ray and the
+    others (a lower bound of the largest pairwise parallax, at least half of it; 0 for one observation).
+
+    ``centres (M, 3)``: the observing camera centre per observation, ``X_world (M, 3)``: the point per
+    observation, ``point (M,)``: point row of each observation in ``0 .. n_points - 1``. Parallax as
+    in ORB-SLAM2's triangulation test (Mur-Artal & Tardos 2017: ``cos`` of the ray angle > 0.9998 is
+    too little), vectorized over observations.
+    """
+    ray = X_world - centres
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    first = np.full(n_points, -1, np.int64)
+    first[point[::-1]] = np.arange(len(point))[::-1]  # the last write wins: the first observation
+    cos = np.einsum("ij,ij->i", ray, ray[first[point]])
+    min_cos = np.ones(n_points)
+    np.minimum.at(min_cos, point, cos)
+    return np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
+
+
+def segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
+    return [k for k in map_.keyframes.values() if k.segment == segment and not k.bad]
+
+
+
+
+class LocalProblemBuilder:
+    """Builds the BA problems of :class:`vslam.backend.local_mapping.LocalMapper`."""
+
+    def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: BackendConfig,
+                 scale_factor: float) -> None:
+        self.map = map_
+        self.camera = camera
+        self.sensor = sensor
+        self.config = config
+        self.scale_factor = scale_factor
+
+    def window(self, kf: KeyFrame) -> tuple[list[int], list[int]]:
+        """``(optimized keyframe ids, constant keyframe ids)`` of the local BA around ``kf``."""
+        cfg = self.config
+        seg = segment_keyframes(self.map, kf.segment)
+        good = {k.id for k in seg}
+        first = min(good)
+        recent = sorted(good)[-cfg.local.window_size:]
+        cov = [k for k in self.map.covisible(kf.id) if k in good][: cfg.covisible_keyframes]
+        window = sorted(set(recent) | set(cov) | {kf.id})
+        # constant: covisible keyframes outside the window (they observe window points), strongest first
+        weight: dict[int, int] = {}
+        for k in window:
+            for o, w in self.map.covisibility.get(k, {}).items():
+                if o in good and o not in window:
+                    weight[o] = weight.get(o, 0) + w
+        fixed = sorted(weight, key=lambda o: (-weight[o], o))[: cfg.max_fixed_keyframes]
+        if first in window and len(window) > 1:  # the segment's origin never moves
+            window.remove(first)
+            fixed.append(first)
+        need = 2 if self.sensor == "mono" else 1
+        while len(fixed) < need and len(window) > 1:
+            fixed.append(window.pop(0))
+        return window, sorted(fixed)
+
+    def build_local(self, kf_id: int) -> tuple[BAProblem, ProblemContext] | None:
+        kf = self.map.keyframes.get(kf_id)
+        if kf is None or kf.bad:
+            return None
+        window, fixed = self.window(kf)
+        if not window:
+            return None
+        pts = self.map.local_point_ids(window)
+        return self.build(window, fixed, pts, kf_id)
+
+    def build(self, var_ids: list[int], fixed_ids: list[int], pts: np.ndarray,
+              new_kf: int) -> tuple[BAProblem, ProblemContext] | None:
+        """Gather the observations of points ``pts`` in the given keyframes (vectorized per keyframe)."""
+        store = self.map.points
+        n_rows = len(store)
+        if len(pts) == 0:
+            return None
+        member = np.zeros(n_rows + 1, bool)
+        member[pts] = True
+        kf_ids = list(var_ids) + list(fixed_ids)
+        cols = self._gather(kf_ids, member, n_rows)
+        if not cols["kf"]:
+            return None
+        c = {k: np.concatenate(v) for k, v in cols.items()}
+        # a point needs two observations, or one with depth / disparity, to be determined
+        pt_ids, inv = np.unique(c["pt"], return_inverse=True)
+        n_obs = np.bincount(inv, minlength=len(pt_ids))
+        has3 = np.bincount(inv, weights=(np.isfinite(c["ur"]) | np.isfinite(c["d"])).astype(float),
+                           minlength=len(pt_ids)) > 0
+        ok_pt = (n_obs >= 2) | has3
+        if self.sensor != "mono" and self.config.depthless_min_parallax_deg > 0:
+            # stereo / RGB-D: a point without any depth or disparity here (far stereo points enter
+            # as monocular) whose rays barely diverge has an unobservable depth
+            ok_pt &= has3 | (max_parallax_deg(self._centres(kf_ids, c["kf"]), store.position[c["pt"]], inv, len(pt_ids))
+                             >= self.config.depthless_min_parallax_deg)
+        left_out = None
+        if self.sensor == "mono" and self.config.mono_min_observations > 2:
+            # two-view points: the least constrained depth, which BA pushes outwards (~1 % per
+            # window on KITTI 07) and the next keyframe's PnP turns into scale drift; they stay in
+            # the map as triangulated (and join BA once a third keyframe sees them). Not in the
+            # first windows, where every point is a two-view one.
+            multi = n_obs >= self.config.mono_min_observations
+            if multi.sum() >= self.config.mono_min_multiview_points:
+                if self.config.mono_left_out != "keep":
+                    lo = (ok_pt & ~multi)[inv]
+                    left_out = (c["pt"][lo], c["kf"][lo], c["uv"][lo])
+                ok_pt &= multi
+        keep = ok_pt[inv]
+        c = {k: v[keep] for k, v in c.items()}
+        pt_ids = pt_ids[ok_pt]
+        used_kf = [k for k in kf_ids if np.any(c["kf"] == k)]
+        var_used = [k for k in var_ids if k in used_kf]
+        if not var_used or len(pt_ids) == 0:
+            return None
+        fixed_used = [k for k in fixed_ids if k in used_kf]
+        problem = BAProblem(
+            camera=self.camera, kf_ids=np.array(used_kf, np.int64),
+            T_world_cam=np.stack([self.map.keyframes[k].T_world_cam for k in used_kf]),
+            pt_ids=pt_ids, X_world=store.position[pt_ids], obs_kf=c["kf"], obs_pt=c["pt"], obs_uv=c["uv"],
+            obs_sigma=c["sig"], obs_u_right=c["ur"], obs_depth=c["d"],
+            fixed_kf_ids=np.array(fixed_used, np.int64),
+        )
+        return problem, ProblemContext(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
+                                 new_kf=new_kf, left_out=left_out)
+
+    def _gather(self, kf_ids: list[int], member: np.ndarray, n_rows: int) -> dict[str, list[np.ndarray]]:
+        """Per keyframe, its observations of the points flagged in ``member``: keyframe, point,
+        keypoint index, undistorted pixel, sigma, virtual right coordinate (stereo), depth (RGB-D)."""
+        cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
+        for kid in kf_ids:
+            k = self.map.keyframes[kid]
+            pid = k.point_ids
+            sel = np.flatnonzero(member[np.where(pid >= 0, pid, n_rows)])
+            if len(sel) == 0:
+                continue
+            _, first = np.unique(pid[sel], return_index=True)  # one observation per point and keyframe
+            sel = sel[np.sort(first)]
+            cols["kf"].append(np.full(len(sel), kid, np.int64))
+            cols["pt"].append(pid[sel])
+            cols["idx"].append(sel)
+            cols["uv"].append(k.uv_undist[sel])
+            cols["sig"].append(np.power(self.scale_factor, k.octave[sel].astype(float)))
+            nan = np.full(len(sel), np.nan)
+            if self.sensor == "stereo" and k.u_right is not None:
+                # keep the measured disparity, expressed at the undistorted left column
+                disp = k.uv[sel, 0] - k.u_right[sel]
+                ok = np.isfinite(disp) & (disp > 0) & np.isfinite(k.depth[sel])
+                if self.config.stereo_far_baselines > 0:  # far points: the disparity is too weak, mono only
+                    ok &= k.depth[sel] < self.config.stereo_far_baselines * float(self.camera.baseline)
+                cols["ur"].append(np.where(ok, k.uv_undist[sel, 0] - disp, np.nan))
+                cols["d"].append(nan)
+            elif self.sensor == "rgbd":
+                d = k.depth[sel]
+                cols["ur"].append(nan)
+                cols["d"].append(np.where(np.isfinite(d) & (d > 0), d, np.nan))
+            else:
+                cols["ur"].append(nan)
+                cols["d"].append(nan)
+        return cols
+
+    def _centres(self, kf_ids: list[int], obs_kf: np.ndarray) -> np.ndarray:
+        """Camera centre (world) of the keyframe of each observation ``obs_kf (M,)``."""
+        ids = np.asarray(kf_ids, np.int64)
+        order = np.argsort(ids)
+        centres = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in ids])
+        return centres[order[np.searchsorted(ids[order], obs_kf)]]
