@@ -60,8 +60,8 @@ def _run(frames, sensor: str, overrides: list[str], drift_deg: float = 0.0):
 
         def recorded(p, result):  # the essential graph's write-back, before any global BA
             rec = apply(p, result)
-            system.corrections.append(({k: p.T_before[i].copy() for i, k in enumerate(p.nodes)},
-                                       {k: system.map.keyframes[k].T_world_cam.copy() for k in p.nodes}))
+            system.corrections.append(({k: p.graph.T_before[i].copy() for i, k in enumerate(p.graph.nodes)},
+                                       {k: system.map.keyframes[k].T_world_cam.copy() for k in p.graph.nodes}))
             return rec
 
         closer._apply_correction = recorded
