@@ -35,7 +35,7 @@ def _localize(mapped, frames):
     slam_map, db, _, meta = load_map(run)
     ds = open_dataset(seq, sensor="rgbd")
     loc = Localizer(slam_map, db, ds.camera, sensor=meta["sensor"])
-    results = [loc.localize(f) for f in frames(ds)]
+    results = [loc.track(f) for f in frames(ds)]
     return loc, results, ds.ground_truth(), slam_map
 
 
@@ -83,7 +83,7 @@ def test_unknown_place_is_not_localized_and_map_unchanged(mapped):
                   camera=ds.camera, depth=np.ones((240, 320), np.float32))
     blank = Frame(index=998, timestamp=98.0, image=np.full((240, 320), 128, np.uint8), camera=ds.camera,
                   depth=np.zeros((240, 320), np.float32))
-    out: list[LocalizeResult] = [loc.localize(f) for f in (noise, blank, good[0], good[1], noise, good[2])]
+    out: list[LocalizeResult] = [loc.track(f) for f in (noise, blank, good[0], good[1], noise, good[2])]
     assert [r.T_world_cam is None for r in out] == [True, True, False, False, True, False]
     assert out[0].state == "lost" and out[2].state == "localized" and out[3].state == "tracking"
     assert out[5].state == "localized"  # after losing track: global relocalization again
@@ -98,7 +98,7 @@ def test_without_saved_database_and_config_checks(mapped):
     slam_map, _, _, _ = load_map(run)
     ds = open_dataset(seq, sensor="rgbd")
     loc = Localizer(slam_map, None, ds.camera, sensor="rgbd", localize_config=LocalizerConfig(min_inliers=40))
-    res = [loc.localize(f) for f in ds.frames(50, 53)]
+    res = [loc.track(f) for f in ds.frames(50, 53)]
     assert all(r.T_world_cam is not None and r.n_inliers >= 40 for r in res)
     from vslam.errors import ConfigError
 

@@ -34,6 +34,7 @@ from vslam.geometry.lie import inv_se3 as inv_T
 from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
+from vslam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -111,11 +112,13 @@ class LocalizerConfig:
 @dataclass
 class LocalizeResult:
     """The outcome for one frame: ``state`` is ``localized`` (global relocalization), ``tracking``
-    (tracked from the previous pose) or ``lost`` (``T_world_cam`` None)."""
+    (tracked from the previous pose) or ``lost`` (``T_world_cam`` None). The shape of a
+    :class:`vslam.stream.FrameResult` (a localized frame is never a keyframe: the map is fixed)."""
 
     T_world_cam: np.ndarray | None
     state: str
     n_inliers: int
+    is_keyframe: bool = False
 
 
 @dataclass
@@ -131,7 +134,9 @@ class _Obs:
 
 
 class Localizer:
-    """Streaming localizer: ``localizer.localize(frame) -> LocalizeResult`` (see the module docstring).
+    """Streaming localizer: ``localizer.track(frame) -> LocalizeResult`` (see the module docstring);
+    a :class:`vslam.stream.FrameTracker`, so :func:`vslam.runner.run_sequence` drives it as it
+    drives the SLAM system.
 
     Args:
         slam_map: the loaded map (read only).
@@ -182,6 +187,8 @@ class Localizer:
         self.ref_kf: int | None = None
         self.counts: dict[str, int] = defaultdict(int)
         self.timers: dict[str, float] = defaultdict(float)
+        self._timestamps: list[float] = []  # the localized frames, for trajectory()
+        self._poses: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ public
     def reset(self) -> None:
@@ -189,7 +196,7 @@ class Localizer:
         self.T_world_last = self.T_world_prev = None
         self.ref_kf = None
 
-    def localize(self, frame: Any) -> LocalizeResult:
+    def track(self, frame: Any) -> LocalizeResult:
         """Localize one :class:`~vslam.datasets.frame.Frame` in the map."""
         self.counts["frames"] += 1
         t0 = time.perf_counter()
@@ -215,14 +222,28 @@ class Localizer:
             # map's local inconsistency, so the next frame starts without a velocity
             self.T_world_prev = self.T_world_last if result.state == "tracking" else None
             self.T_world_last = result.T_world_cam
+            self._timestamps.append(float(frame.timestamp))
+            self._poses.append(result.T_world_cam)
         return result
 
+    def finish(self) -> None:
+        """End of input (nothing pending: the map is fixed)."""
+
+    def trajectory(self) -> Trajectory:
+        """The localized frames' poses (in the map's world frame), as tracked."""
+        poses = np.stack(self._poses) if self._poses else np.zeros((0, 4, 4))
+        return Trajectory(np.asarray(self._timestamps, float), poses)
+
     def stats(self) -> dict:
-        """Counts (frames, tracking, localized, lost, track_failures, relocalization attempts) and
-        per-stage mean milliseconds."""
+        """Counts (frames, localized = tracked + relocalized and its ratio, tracked, relocalizations,
+        relocalization attempts, track failures, implausible steps, lost) and per-stage mean
+        milliseconds."""
         n = max(self.counts["frames"], 1)
+        n_loc = self.counts["tracking"] + self.counts["localized"]
         return {
             "frames": self.counts["frames"],
+            "localized": n_loc,
+            "localized_ratio": round(n_loc / self.counts["frames"], 4) if self.counts["frames"] else 0.0,
             "tracked": self.counts["tracking"],
             "relocalizations": self.counts["localized"],
             "relocalization_attempts": self.relocalizer.attempts,

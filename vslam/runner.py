@@ -1,4 +1,5 @@
-"""Run a whole sequence through a :class:`~vslam.system.System` and write the results to a folder.
+"""The one run loop: a whole sequence through a frame tracker (:class:`vslam.stream.FrameTracker`:
+the SLAM :class:`~vslam.system.System` or the :class:`~vslam.localizer.Localizer`), results to a folder.
 
 Outputs (the contract of ``vslam run``):
 
@@ -6,13 +7,15 @@ Outputs (the contract of ``vslam run``):
   timestamps. Written and flushed frame by frame, whole lines only (a failed write is cut back),
   so an interrupted or crashed run keeps what it had; rewritten at the end (atomically) with the
   final (optimized) poses.
-* ``keyframes.txt``: the keyframe trajectory, TUM format.
+* ``keyframes.txt``: the keyframe trajectory, TUM format (trackers with keyframes).
 * ``stats.json``: counts (``skipped_frames``: unreadable frames the reader skipped), ``error`` when
   the run failed or was stopped, timings (``read_ms``: mean wait of the tracker for a decoded frame;
-  ``stage_ms``: the system's per-stage times), loops, and ATE/RPE when ground truth is known.
-* ``config.yaml``: the fully resolved configuration.
+  ``stage_ms``: the tracker's per-stage times), the tracker's own stats (loops ...), and ATE/RPE
+  when ground truth is known.
+* ``config.yaml``: the fully resolved configuration (when given);
+* the map outputs (``map/``, ``sparse.ply``, ``topology.*``) of a tracker that builds a map.
 
-Frames are decoded (and, by the system's ``prepare``, converted to gray and their features
+Frames are decoded (and, by the tracker's ``prepare``, converted to gray and their features
 detected) in a background thread a few frames ahead of tracking
 (:func:`vslam.datasets.prefetch.prefetch`), so on a machine with two cores decoding and detection
 overlap tracking.
@@ -24,6 +27,7 @@ import logging
 import os
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -35,6 +39,7 @@ from vslam.errors import OutputError
 from vslam.trajectory import Trajectory, format_tum_line, tum_rows_from_poses, write_tum
 from vslam.outputs import LineWriter, atomic_path, atomic_write_text, open_run_dir
 from vslam.signals import interrupt_reason
+from vslam.stream import FrameTracker
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +88,7 @@ def _rss_mb() -> float | None:
 
 
 def run_sequence(
-    system: Any,
+    system: FrameTracker,
     frames: Iterable[Any],
     total: int | None = None,
     output_dir: str | Path | None = None,
@@ -101,8 +106,8 @@ def run_sequence(
     """Feed ``frames`` to ``system.track`` one by one and collect (and optionally write) the results.
 
     Args:
-        system: a :class:`vslam.system.System` (anything with ``track``, ``finish``,
-            ``trajectory``, ``keyframe_trajectory`` and ``stats``).
+        system: a frame tracker (:class:`vslam.stream.FrameTracker`): the SLAM
+            :class:`~vslam.system.System` or the :class:`~vslam.localizer.Localizer`.
         frames: an iterable of :class:`~vslam.datasets.frame.Frame` (streamed, never materialized).
         total: number of frames, for the progress bar.
         output_dir: where to write the outputs; None writes nothing.
@@ -110,11 +115,12 @@ def run_sequence(
         ground_truth: when given, ATE/RPE are computed and added to the stats.
         align: ``se3`` or ``sim3`` (monocular) for the ATE.
         on_frame: optional callback ``(frame, track_result)``, e.g. a live viewer.
+        extra_stats: added to the stats (after the tracker's own) and passed to the map outputs.
         prefetch_depth: frames decoded ahead in a background thread while the current one is
             tracked (:func:`vslam.datasets.prefetch.prefetch`; bounded, so memory stays flat);
-            that thread also runs the system's ``prepare(frame)`` (or its tracker's: grayscale
-            and feature detection) when it has one, on the frames it decoded while the tracker
-            was busy (so the work balances between the threads). 0 decodes in the tracking thread.
+            that thread also runs the tracker's ``prepare(frame)`` when it has one (grayscale and
+            feature detection), on the frames it decoded while the tracker was busy (so the work
+            balances between the threads). 0 decodes in the tracking thread.
         prefetch_mode: ``thread`` (above), ``process`` (``frames`` must be a
             :class:`~vslam.datasets.prefetch.FrameRange`: reading and ``prepare`` then run in a
             child process, :func:`~vslam.datasets.prefetch.prefetch_process`, free of the GIL;
@@ -133,22 +139,18 @@ def run_sequence(
     Raises:
         OutputError: the output folder cannot be used or an output cannot be written (disk full).
     """
+    spec = _RunSpec(total, ground_truth, align, progress, on_frame, extra_stats, prefetch_depth, cv_threads,
+                    prefetch_mode)
     out = Path(output_dir) if output_dir is not None else None
     run_dir = open_run_dir(out, inputs) if out is not None else None
     try:
-        if out is not None and config is not None:
-            with atomic_path(out / "config.yaml") as tmp:
-                dump_config(config, tmp)
-        traj_file = LineWriter(out / "trajectory.txt") if out is not None else None
-        if traj_file is not None:
-            traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam)\n")
+        traj_file = _start_outputs(out, config)
     except BaseException:
         if run_dir is not None:
             run_dir.release()
         raise
     try:
-        result = _run(system, frames, total, out, ground_truth, align, progress, on_frame, extra_stats,
-                      prefetch_depth, cv_threads, prefetch_mode, traj_file)
+        result = _run(system, frames, spec, out, traj_file)
     finally:
         if run_dir is not None:
             run_dir.release()
@@ -157,65 +159,93 @@ def run_sequence(
     return result
 
 
-def _run(system, frames, total, out, ground_truth, align, progress, on_frame, extra_stats, prefetch_depth,
-         cv_threads, prefetch_mode, traj_file) -> RunResult:
-    """The loop of :func:`run_sequence`, writing into the prepared folder ``out`` (or nothing)."""
-    from tqdm import tqdm
+@dataclass(frozen=True)
+class _RunSpec:
+    """The options of one :func:`run_sequence` call that the loop and its summary need."""
 
-    from vslam.datasets.prefetch import PROCESS_HEAD_FRAMES, choose_prefetch, prefetch, prefetch_process
+    total: int | None
+    ground_truth: Trajectory | None
+    align: str
+    progress: bool
+    on_frame: Callable[[Any, Any], None] | None
+    extra_stats: dict | None
+    prefetch_depth: int
+    cv_threads: int | None
+    prefetch_mode: str
 
-    n_frames = n_tracked = n_lost = n_gaps = 0
+
+@dataclass
+class _Counts:
+    """The run loop's own counts (the tracker's ``stats()`` override those of the same name)."""
+
+    frames: int = 0
+    tracked: int = 0  # frames with a pose
+    lost: int = 0  # frames in state "lost"
+    gaps: int = 0  # frames the reader skipped (corrupt), from gaps in the frame indices
+    read_s: float = 0.0  # time the tracking thread waited for the next decoded frame
+    rss: list[list] = field(default_factory=lambda: [[0, _rss_mb()]])  # resident MB every 100 frames
     last_index: int | None = None
+
+    def see(self, frame: Any) -> None:
+        """A frame arrived (before it is tracked): count the frames the reader skipped before it."""
+        index = getattr(frame, "index", None)
+        if isinstance(index, (int, np.integer)):
+            if self.last_index is not None and index > self.last_index + 1:
+                self.gaps += int(index - self.last_index - 1)
+            self.last_index = int(index)
+
+    def count(self, result: Any) -> None:
+        """A frame was tracked with ``result``."""
+        self.frames += 1
+        if result.T_world_cam is not None:
+            self.tracked += 1
+        elif result.state == "lost":
+            self.lost += 1
+        if self.frames % 100 == 0:
+            self.rss.append([self.frames, _rss_mb()])
+
+    def summary(self, wall: float, mode: str, complete: bool, total: int | None) -> dict:
+        """The first keys of ``stats.json``; ``complete``: the run was not cut short."""
+        skipped = self.gaps
+        if complete and total is not None:
+            skipped = max(skipped, int(total) - self.frames)
+        return {
+            "frames": self.frames,
+            "skipped_frames": skipped,
+            "tracked": self.tracked,
+            "lost": self.lost,
+            "wall_s": round(wall, 3),
+            "fps": round(self.frames / wall, 2) if wall > 0 else 0.0,
+            "read_ms": round(1000.0 * self.read_s / max(self.frames, 1), 3),  # mean wait for a decoded frame
+            "prefetch": mode,  # where frames were decoded and features detected ahead (thread / process / none)
+            "rss_mb": self.rss,  # [[frames done, resident MB], ...]
+        }
+
+
+def _start_outputs(out: Path | None, config: Any) -> LineWriter | None:
+    """Write ``config.yaml`` and open the streamed ``trajectory.txt`` (None without an output folder)."""
+    if out is None:
+        return None
+    if config is not None:
+        with atomic_path(out / "config.yaml") as tmp:
+            dump_config(config, tmp)
+    traj_file = LineWriter(out / "trajectory.txt")
+    traj_file.write("# timestamp tx ty tz qx qy qz qw  (T_world_cam)\n")
+    return traj_file
+
+
+def _run(tracker: FrameTracker, frames: Iterable[Any], spec: _RunSpec, out: Path | None,
+         traj_file: LineWriter | None) -> RunResult:
+    """The loop of :func:`run_sequence`, writing into the prepared folder ``out`` (or nothing)."""
+    counts = _Counts()
     t_start = time.perf_counter()
     error: str | None = None
-    bar = tqdm(total=total, desc="tracking", unit="frame", disable=not progress, file=sys.stderr,
-               dynamic_ncols=True, leave=False)
-    # per-frame work that needs no tracking state (detection) runs in the decoding thread too
-    mode = "none" if prefetch_depth <= 0 else choose_prefetch(prefetch_mode, frames, total)
-    if mode == "process":
-        source = _adopting(system, prefetch_process(frames, getattr(system, "frame_preparer", lambda: None)(),
-                                                    prefetch_depth, head=PROCESS_HEAD_FRAMES))
-    else:
-        source = prefetch(frames, prefetch_depth if mode == "thread" else 0, getattr(system, "prepare", None))
+    source, mode = _frame_source(tracker, frames, spec)
     log.debug("prefetching frames: %s", mode)
-    cv_threads_before = None
-    if cv_threads is not None:
-        import cv2
-
-        cv_threads_before = cv2.getNumThreads()
-        cv2.setNumThreads(int(cv_threads))
-    t_read = 0.0  # time the tracking thread waited for the next decoded frame
-    rss: list[list] = [[0, _rss_mb()]]  # resident memory every 100 frames (flat apart from the map)
     try:
-        while True:
-            t0 = time.perf_counter()
-            try:
-                frame = next(source)
-            except StopIteration:
-                break
-            t_read += time.perf_counter() - t0
-            index = getattr(frame, "index", None)
-            if isinstance(index, (int, np.integer)):
-                if last_index is not None and index > last_index + 1:
-                    n_gaps += int(index - last_index - 1)  # frames the reader skipped (corrupt)
-                last_index = int(index)
-            result = system.track(frame)
-            n_frames += 1
-            if result.T_world_cam is not None:
-                n_tracked += 1
-                if traj_file is not None:
-                    row = tum_rows_from_poses(result.T_world_cam[None])[0]
-                    traj_file.write(format_tum_line(frame.timestamp, row))
-            elif result.state == "lost":
-                n_lost += 1
-            if on_frame is not None:
-                on_frame(frame, result)
-            bar.update(1)
-            if n_frames % 10 == 0:
-                bar.set_postfix(tracked=n_tracked, lost=n_lost, refresh=False)
-            if n_frames % 100 == 0:
-                rss.append([n_frames, _rss_mb()])
-        system.finish()
+        with _opencv_threads(spec.cv_threads):
+            _drive(tracker, source, counts, traj_file, spec)
+            tracker.finish()
     except KeyboardInterrupt as exc:
         error = interrupt_reason(exc)
         raise
@@ -224,76 +254,135 @@ def _run(system, frames, total, out, ground_truth, align, progress, on_frame, ex
         raise
     finally:
         source.close()  # stops the decoding thread (a no-op once the frames are exhausted)
-        if cv_threads_before is not None:
-            import cv2
-
-            cv2.setNumThreads(cv_threads_before)
-        bar.close()
         wall = time.perf_counter() - t_start
         if traj_file is not None:
             traj_file.close()
-        skipped = n_gaps
-        if error is None and total is not None:
-            skipped = max(skipped, int(total) - n_frames)
-        stats = {
-            "frames": n_frames,
-            "skipped_frames": skipped,
-            "tracked": n_tracked,
-            "lost": n_lost,
-            "wall_s": round(wall, 3),
-            "fps": round(n_frames / wall, 2) if wall > 0 else 0.0,
-            "read_ms": round(1000.0 * t_read / max(n_frames, 1), 3),  # mean wait for a decoded frame
-            "prefetch": mode,  # where frames were decoded and features detected ahead (thread / process / none)
-            "rss_mb": rss,  # [[frames done, resident MB], ...]
-        }
-        try:
-            stats.update(system.stats())
-        except Exception:  # never lose the run summary because of a stats failure
-            log.exception("collecting system stats failed")
-        stats.setdefault("loops", [])
-        if extra_stats:
-            stats.update(extra_stats)
-        if error is not None:
-            stats["error"] = error
-        trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-        output_error = None
-        if error is None:
-            trajectory = system.trajectory()
-            # frames posed after the fact (seen before a monocular initialization) count as tracked
-            stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
-            if out is not None:
-                output_error = _write_outputs(system, out, trajectory, stats, extra_stats)
-            if ground_truth is not None and len(trajectory) >= 3:
-                stats.update(_evaluate(trajectory, ground_truth, align))
-        if out is not None:
-            if output_error is not None:
-                stats["error"] = output_error
-            try:
-                _write_json(out / "stats.json", stats)
-            except OutputError as exc:
-                if error is None and output_error is None:
-                    raise
-                if output_error is not None:
-                    output_error += "; stats.json could not be written either"
-                else:
-                    log.error("%s", exc)  # the run's own error is the one to report
+        stats, trajectory, output_error = _conclude(tracker, counts.summary(wall, mode, error is None, spec.total),
+                                                    error, spec, out)
     if output_error is not None:
         raise OutputError(output_error)
     return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
 
 
-def _write_outputs(system: Any, out: Path, trajectory: Trajectory, stats: dict, extra_stats: dict | None) -> str | None:
-    """Write the final trajectory, keyframes and map outputs; the first failure as one line (or None)."""
+def _frame_source(tracker: Any, frames: Iterable[Any], spec: _RunSpec) -> tuple[Iterator[Any], str]:
+    """The frames, decoded (and prepared by the tracker's hooks) ahead in a thread or a process, or
+    not; and that mode (``thread``, ``process`` or ``none``)."""
+    from vslam.datasets.prefetch import PROCESS_HEAD_FRAMES, choose_prefetch, prefetch, prefetch_process
+
+    depth = spec.prefetch_depth
+    # per-frame work that needs no tracking state (detection) runs in the decoding thread too
+    mode = "none" if depth <= 0 else choose_prefetch(spec.prefetch_mode, frames, spec.total)
+    if mode == "process":
+        preparer = getattr(tracker, "frame_preparer", lambda: None)()
+        return _adopting(tracker, prefetch_process(frames, preparer, depth, head=PROCESS_HEAD_FRAMES)), mode
+    return prefetch(frames, depth if mode == "thread" else 0, getattr(tracker, "prepare", None)), mode
+
+
+@contextmanager
+def _opencv_threads(n: int | None) -> Iterator[None]:
+    """OpenCV's thread pool at ``n`` threads inside the block (None: left alone)."""
+    if n is None:
+        yield
+        return
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+def _drive(tracker: FrameTracker, source: Iterator[Any], counts: _Counts, traj_file: LineWriter | None,
+           spec: _RunSpec) -> None:
+    """Track every frame of ``source``, streaming each pose to ``traj_file`` as it comes."""
+    from tqdm import tqdm
+
+    with tqdm(total=spec.total, desc="tracking", unit="frame", disable=not spec.progress, file=sys.stderr,
+              dynamic_ncols=True, leave=False) as bar:
+        while True:
+            t0 = time.perf_counter()
+            try:
+                frame = next(source)
+            except StopIteration:
+                break
+            counts.read_s += time.perf_counter() - t0
+            counts.see(frame)
+            result = tracker.track(frame)
+            counts.count(result)
+            if result.T_world_cam is not None and traj_file is not None:
+                row = tum_rows_from_poses(result.T_world_cam[None])[0]
+                traj_file.write(format_tum_line(frame.timestamp, row))
+            if spec.on_frame is not None:
+                spec.on_frame(frame, result)
+            bar.update(1)
+            if counts.frames % 10 == 0:
+                bar.set_postfix(tracked=counts.tracked, lost=counts.lost, refresh=False)
+
+
+def _conclude(tracker: FrameTracker, stats: dict, error: str | None, spec: _RunSpec,
+              out: Path | None) -> tuple[dict, Trajectory, str | None]:
+    """Complete the run's ``stats`` (the tracker's, the extra ones, ATE/RPE), write the final
+    outputs and ``stats.json``. Returns the stats, the final trajectory and the first output
+    failure as one line (or None)."""
+    trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    if error is None:
+        trajectory = tracker.trajectory()
+        # frames posed after the fact (seen before a monocular initialization) count as tracked
+        stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
+    try:
+        stats.update(tracker.stats())
+    except Exception:  # never lose the run summary because of a stats failure
+        log.exception("collecting the tracker's stats failed")
+    stats.setdefault("loops", [])
+    if spec.extra_stats:
+        stats.update(spec.extra_stats)
+    if error is not None:
+        stats["error"] = error
+    output_error = None
+    if error is None:
+        if out is not None:
+            output_error = _write_outputs(tracker, out, trajectory, stats, spec.extra_stats)
+        if spec.ground_truth is not None and len(trajectory) >= 3:
+            stats.update(trajectory_errors(trajectory, spec.ground_truth, spec.align))
+    if out is not None:
+        output_error = _write_final_stats(out, stats, error, output_error)
+    return stats, trajectory, output_error
+
+
+def _write_final_stats(out: Path, stats: dict, error: str | None, output_error: str | None) -> str | None:
+    """Write ``stats.json`` (with the output failure as its ``error``); returns ``output_error``,
+    extended when stats.json failed too. Raises OutputError when that was the only failure."""
+    if output_error is not None:
+        stats["error"] = output_error
+    try:
+        _write_json(out / "stats.json", stats)
+    except OutputError as exc:
+        if error is None and output_error is None:
+            raise
+        if output_error is not None:
+            output_error += "; stats.json could not be written either"
+        else:
+            log.error("%s", exc)  # the run's own error is the one to report
+    return output_error
+
+
+def _write_outputs(tracker: Any, out: Path, trajectory: Trajectory, stats: dict,
+                   extra_stats: dict | None) -> str | None:
+    """Write the final trajectory, the keyframes and the map outputs (those the tracker has);
+    the first failure as one line (or None)."""
     step = out / "trajectory.txt"
     try:
         if len(trajectory):
             _atomic_write_tum(step, trajectory)
-        step = out / "keyframes.txt"
-        with atomic_path(step) as tmp:
-            write_tum(tmp, system.keyframe_trajectory())
-        if hasattr(system, "save_map_outputs"):
+        if hasattr(tracker, "keyframe_trajectory"):
+            step = out / "keyframes.txt"
+            with atomic_path(step) as tmp:
+                write_tum(tmp, tracker.keyframe_trajectory())
+        if hasattr(tracker, "save_map_outputs"):
             step = out / "map"  # with sparse.ply and topology.*
-            stats["outputs"] = system.save_map_outputs(out, metadata=extra_stats)
+            stats["outputs"] = tracker.save_map_outputs(out, metadata=extra_stats)
     except OutputError as exc:
         return str(exc)
     except OSError as exc:
@@ -306,25 +395,27 @@ def _write_outputs(system: Any, out: Path, trajectory: Trajectory, stats: dict, 
     return None
 
 
-def _adopting(system: Any, items: Iterator[tuple[Any, Any, float]]) -> Iterator[Any]:
+def _adopting(tracker: Any, items: Iterator[tuple[Any, Any, float]]) -> Iterator[Any]:
     """Frames from :func:`~vslam.datasets.prefetch.prefetch_process`, each handing its prepared
-    result to ``system.adopt_prepared`` before the tracker gets it."""
+    result to ``tracker.adopt_prepared`` before the tracker gets it."""
     try:
         for frame, result, seconds in items:
             if result is not None:
-                system.adopt_prepared(frame, result, seconds)
+                tracker.adopt_prepared(frame, result, seconds)
             yield frame
     finally:
         items.close()
 
 
-def _evaluate(traj: Trajectory, gt: Trajectory, align: str) -> dict:
-    """ATE/RPE against ground truth, as in ``vslam eval`` (returns {} when they do not overlap)."""
+def trajectory_errors(trajectory: Trajectory, ground_truth: Trajectory, align: str) -> dict:
+    """ATE/RPE of ``trajectory`` against ``ground_truth`` as in ``vslam eval``, the keys of
+    ``stats.json`` (``ate_rmse``, ``rpe_trans_rmse``, ``rpe_rot_deg_rmse``, ``matched_poses``,
+    ``scale``); {} when they do not overlap."""
     from vslam.errors import VslamError
     from vslam.eval import evaluate_trajectories
 
     try:
-        res = evaluate_trajectories(traj, gt, align=align)
+        res = evaluate_trajectories(trajectory, ground_truth, align=align)
     except VslamError as exc:
         log.warning("evaluation against ground truth skipped: %s", exc)
         return {}

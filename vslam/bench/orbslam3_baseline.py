@@ -202,7 +202,7 @@ def run_orbslam3(path: str | Path, output: str | Path | None, sensor: str | None
     """
     from vslam.datasets import open_dataset
     from vslam.trajectory import read_trajectory
-    from vslam.runner import _evaluate
+    from vslam.runner import trajectory_errors
 
     _check_pace(pace, pace_rate)
     vocabulary = check_vocabulary(vocabulary)
@@ -233,7 +233,7 @@ def run_orbslam3(path: str | Path, output: str | Path | None, sensor: str | None
     ds = open_dataset(path, kind=dataset, sensor=stats.get("sensor", sensor))
     gt = ds.ground_truth()
     if gt is not None and traj is not None and len(traj) >= 3:
-        stats.update(_evaluate(traj, gt, "sim3" if stats.get("sensor") == "mono" else "se3"))
+        stats.update(trajectory_errors(traj, gt, "sim3" if stats.get("sensor") == "mono" else "se3"))
     (out / "stats.json").write_text(json.dumps(stats, indent=2))
     return stats
 
