@@ -104,3 +104,38 @@ def test_without_saved_database_and_config_checks(mapped):
 
     with pytest.raises(ConfigError):
         LocalizerConfig(min_inliers=3)
+
+
+@pytest.mark.parametrize("mode", ["none", "thread", "process"])
+def test_the_run_loop_drives_the_localizer_unchanged(mapped, mode):
+    """:func:`run_sequence` drives a Localizer as it drives the SLAM system: the same poses and
+    counts as calling ``track`` frame by frame, whatever the prefetch mode; the localized frames'
+    trajectory and the localized count come from the localizer."""
+    from vslam.datasets.prefetch import FrameRange
+    from vslam.runner import run_sequence
+    from vslam.stream import FrameResult, FrameTracker
+
+    seq, run = mapped
+    ds = open_dataset(seq, sensor="rgbd")
+
+    def localizer():
+        slam_map, db, _, _ = load_map(run)
+        return Localizer(slam_map, db, ds.camera, sensor="rgbd")
+
+    by_hand = localizer()
+    results = [by_hand.track(f) for f in ds.frames(45, 60)]
+    assert isinstance(by_hand, FrameTracker) and all(isinstance(r, FrameResult) for r in results)
+    res = run_sequence(localizer(), FrameRange(ds, 45, 60), total=15, progress=False, prefetch_mode=mode,
+                       prefetch_depth=0 if mode == "none" else 4)
+    posed = [r.T_world_cam for r in results if r.T_world_cam is not None]
+    assert len(posed) >= 14 and len(res.trajectory) == len(posed)
+    np.testing.assert_array_equal(res.trajectory.T_world_cam, np.stack(posed))
+    np.testing.assert_array_equal(res.trajectory.timestamps, by_hand.trajectory().timestamps)
+    s, h = res.stats, by_hand.stats()
+    assert (s["frames"], s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == \
+        (15, len(posed), h["tracked"], h["relocalizations"], h["lost"])
+    assert s["tracked"] + s["relocalizations"] == s["localized"] and s["prefetch"] == mode
+    if mode == "thread":  # features of the frames decoded while the localizer was busy were found ahead
+        assert s["stage_ms"]["prepare"] > 0.0
+    else:  # none; process: 15 frames are all read by the tracking thread while the child starts
+        assert "prepare" not in s["stage_ms"]

@@ -30,6 +30,7 @@ from vslam.errors import ConfigError
 from vslam.features import create_detector
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
+from vslam.frontend.prepare import FramePreparer
 from vslam.geometry.lie import inv_se3 as inv_T
 from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
@@ -189,6 +190,8 @@ class Localizer:
         self.timers: dict[str, float] = defaultdict(float)
         self._timestamps: list[float] = []  # the localized frames, for trajectory()
         self._poses: list[np.ndarray] = []
+        self._preparer = FramePreparer(cfg.features, "match")  # its own detector, for the decoding thread
+        self._prepared: dict[int, tuple[Any, Any]] = {}  # frame index -> (frame, features found ahead)
 
     # ------------------------------------------------------------------ public
     def reset(self) -> None:
@@ -253,9 +256,31 @@ class Localizer:
             "stage_ms": {k: round(1000.0 * v / n, 2) for k, v in self.timers.items()},
         }
 
+    # ------------------------------------------------------------------ prefetch hooks (vslam.stream)
+    def prepare(self, frame: Any) -> None:
+        """Detect ``frame``'s features ahead of :meth:`track`, in the run loop's decoding thread
+        (its own detector; the same features :meth:`track` would find)."""
+        t0 = time.perf_counter()
+        result = self._preparer(frame)
+        self.adopt_prepared(frame, result, time.perf_counter() - t0)
+
+    def frame_preparer(self) -> FramePreparer:
+        """What :meth:`prepare` runs, picklable, for a decoding process; its results go to
+        :meth:`adopt_prepared`."""
+        return FramePreparer(self.config.features, "match")
+
+    def adopt_prepared(self, frame: Any, result: tuple[Any, Any], seconds: float = 0.0) -> None:
+        """Take a :meth:`frame_preparer` result ``(gray, features)`` for ``frame``; :meth:`track`
+        uses it when it gets this very frame."""
+        if len(self._prepared) > 64:  # never consumed (frames dropped by the caller): keep memory flat
+            self._prepared.clear()
+        self._prepared[frame.index] = (frame, result[1])
+        self.timers["prepare"] += seconds
+
     # ------------------------------------------------------------------ features
     def _observe(self, frame: Any) -> _Obs:
-        feats = self.detector.detect(frame.gray)
+        prep = self._prepared.pop(getattr(frame, "index", None), None)
+        feats = prep[1] if prep is not None and prep[0] is frame else self.detector.detect(frame.gray)
         uv = np.asarray(feats.uv, dtype=float).reshape(-1, 2)
         uv_undist = self.camera.undistort_points(uv) if len(uv) else uv
         n = len(uv)

@@ -35,6 +35,10 @@ def test_localize_writes_trajectory_and_stats(small_map, tmp_path, capsys):
     assert stats["relocalizations"] >= 1 and stats["tracked"] + stats["relocalizations"] == 8
     assert stats["ate_rmse"] < 0.03 and stats["matched_poses"] == 8
     assert set(stats["stage_ms"]) >= {"features", "relocalize"}
+    # the run loop of `vslam run`: frames decoded ahead, skipped frames counted, the map's size
+    assert stats["prefetch"] == "thread" and stats["read_ms"] >= 0 and stats["skipped_frames"] == 0
+    assert stats["localized_ratio"] == 1.0 and stats["start_frame"] == 8 and stats["map_keyframes"] >= 2
+    assert not (out / "keyframes.txt").exists() and not (out / "map").exists()  # the map is not rewritten
     traj = read_tum(out / "trajectory.txt")
     assert len(traj) == 8 and np.all(np.diff(traj.timestamps) > 0)
 
@@ -59,3 +63,29 @@ def test_missing_and_corrupt_map_give_clean_errors(small_map, tmp_path, capsys):
     # a bad override is a config error, also exit 2
     rc = main(["localize", str(run), str(seq), "-o", str(tmp_path / "o3"), "--set", "localize.nope=1"])
     assert rc == 2
+
+
+def test_interrupted_localize_keeps_the_poses_so_far_and_says_so(small_map, tmp_path, capsys, monkeypatch):
+    """``vslam localize`` runs in the run loop of ``vslam run``: a stop (Ctrl-C, SIGTERM) keeps the
+    poses streamed so far, whole lines, and writes stats.json with the error."""
+    from vslam.localizer import Localizer
+
+    seq, run = small_map
+    real = Localizer.track
+
+    def track(self, frame):
+        if frame.index == 11:
+            raise KeyboardInterrupt
+        return real(self, frame)
+
+    monkeypatch.setattr(Localizer, "track", track)
+    out = tmp_path / "loc"
+    rc = main(["localize", str(run), str(seq), "--start-frame", "8", "--max-frames", "8", "-o", str(out),
+               "--no-progress", "--set", "localize.min_inliers=25"])
+    err = capsys.readouterr().err
+    assert rc == 130 and "interrupted" in err and "Traceback" not in err
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["error"] == "interrupted" and stats["frames"] == 3 and stats["localized"] == 3
+    assert "ate_rmse" not in stats
+    lines = (out / "trajectory.txt").read_text().splitlines()
+    assert lines[0].startswith("#") and len(lines) == 4 and all(len(ln.split()) == 8 for ln in lines[1:])

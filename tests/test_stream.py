@@ -1,0 +1,83 @@
+"""The stream protocol: the SLAM system and the localizer are both frame trackers, and the run loop
+needs nothing else from a tracker (its optional hooks are optional)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam.runner import run_sequence
+from vslam.stream import FrameResult, FrameTracker
+from vslam.trajectory import Trajectory, read_tum
+
+
+@dataclass
+class _Result:
+    T_world_cam: np.ndarray | None
+    state: str
+    is_keyframe: bool = False
+    n_inliers: int = 0
+
+
+@dataclass
+class _Frame:
+    index: int
+    timestamp: float
+
+
+class _Minimal:
+    """Only the protocol: poses frames with an even index (x = timestamp), loses the others."""
+
+    def __init__(self):
+        self.poses: list[tuple[float, np.ndarray]] = []
+        self.finished = False
+
+    def track(self, frame):
+        if frame.index % 2:
+            return _Result(None, "lost")
+        T = np.eye(4)
+        T[0, 3] = frame.timestamp
+        self.poses.append((frame.timestamp, T))
+        return _Result(T, "ok")
+
+    def finish(self):
+        self.finished = True
+
+    def trajectory(self):
+        return Trajectory(np.array([t for t, _ in self.poses]), np.stack([T for _, T in self.poses]))
+
+    def stats(self):
+        return {"lost": 99}  # the tracker's counts override the loop's
+
+
+def test_system_and_localizer_satisfy_the_protocol():
+    from vslam.config import Config
+    from vslam.geometry.camera import PinholeCamera
+    from vslam.localizer import LocalizeResult, Localizer
+    from vslam.map.map import Map
+    from vslam.system import System, TrackResult
+
+    cam = PinholeCamera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
+    assert isinstance(System(Config(), cam, sensor="rgbd"), FrameTracker)
+    assert isinstance(Localizer(Map(), None, cam, sensor="rgbd"), FrameTracker)
+    assert not isinstance(object(), FrameTracker)
+    assert isinstance(TrackResult(0, 0.0, None, "lost", False, 0), FrameResult)
+    assert isinstance(LocalizeResult(None, "lost", 0), FrameResult)
+
+
+def test_the_run_loop_needs_only_the_protocol(tmp_path):
+    tracker = _Minimal()
+    assert isinstance(tracker, FrameTracker)
+    frames = [_Frame(i, 0.5 * i) for i in range(8)]
+    res = run_sequence(tracker, frames, total=8, output_dir=tmp_path, progress=False, prefetch_depth=2,
+                       extra_stats={"sensor": "test"})
+    assert tracker.finished
+    traj = read_tum(tmp_path / "trajectory.txt")
+    np.testing.assert_allclose(traj.positions[:, 0], [0.0, 1.0, 2.0, 3.0], atol=1e-9)
+    np.testing.assert_array_equal(res.trajectory.timestamps, [0.0, 1.0, 2.0, 3.0])
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert (stats["frames"], stats["tracked"], stats["lost"], stats["skipped_frames"]) == (8, 4, 99, 0)
+    assert stats["sensor"] == "test" and "error" not in stats
+    # no keyframes, no map: none of those outputs
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["stats.json", "trajectory.txt"]
