@@ -158,6 +158,19 @@ class LoopCloser:
         self.correction_listeners: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
 
     # ------------------------------------------------------------------ feeding
+    def adopt_keyframes(self, database: KeyframeDatabase | None = None) -> None:
+        """The map was loaded with keyframes of an earlier session: enter them in this closer's
+        database (their saved BoW vectors from ``database``, else from their descriptors), so loop
+        detection and relocalization find them."""
+        for k in sorted(self.map.keyframes):
+            kf = self.map.keyframes[k]
+            if k in self.database or kf.bad:
+                continue
+            if database is not None and k in database:
+                self.database.add(k, database.bow(k))
+            elif kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
+                self.database.add(k, self.vocabulary.transform(kf.descriptors)[0])
+
     def on_keyframe(self, kf: KeyFrame) -> None:
         """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`, or by the worker
         thread in realtime mode)."""
