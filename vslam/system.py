@@ -173,6 +173,9 @@ class System:
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
                                        loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
         self.tracker.set_relocalizer(self.relocalizer)
+        self.loop_closer.merge_listeners.append(self.tracker.segment_merged)  # segments joined (several segments)
+        if self.local_mapper is not None:
+            self.loop_closer.local_ba = self.local_mapper.process
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
@@ -324,6 +327,8 @@ class System:
             "frames_lost": self._n.get("lost", 0),
             "frames_initializing": self._n.get("initializing", 0),
             "map_segments": self.tracker.segment + 1,
+            "segments": len({k.segment for k in self.map.keyframes.values()}),
+            "merges": [m.to_json() for m in self.loop_closer.merges] if self.loop_closer is not None else [],
             "relocalizations": self.tracker.n_relocalized,
             "depth_bridged": self.tracker.n_depth_bridged,
             "depth_refined": self.tracker.n_depth_refined,

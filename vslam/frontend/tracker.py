@@ -48,6 +48,7 @@ from vslam.frontend.track_local_map import LocalMapTracker
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
+from vslam.map.segment_merge import move_pose, similarity_scale
 
 __all__ = ["BINARY_DETECTORS", "TrackOutput", "Tracker"]
 
@@ -117,13 +118,24 @@ class Tracker:
         st.segment = max((k.segment for k in self.map.keyframes.values()), default=-1)
         self._place_left = int(max_frames_to_place)
 
-    def segment_merged(self, old: int, new: int, D: np.ndarray) -> None:
-        """Segment ``old`` was welded into ``new`` and moved by ``D`` (``T_world_new_from_old`` of
-        the current keyframe): track on in ``new`` from the moved poses."""
-        if self.state.segment == old:
-            self.state.segment = new
-        self.state.local_ids = None
-        self.apply_correction(D)
+    def segment_merged(self, old: int, new: int, S_new_old: np.ndarray) -> None:
+        """Segment ``old`` was joined into ``new``, its world mapped by the similarity ``S_new_old``
+        (:mod:`vslam.loop.segment_merging`): when tracking in ``old``, go on in ``new`` from the
+        moved last poses (the velocity scaled with a monocular merge's scale)."""
+        st = self.state
+        if st.segment != old:
+            return
+        st.segment = new
+        st.local_ids = None
+        s = similarity_scale(S_new_old)
+        mm = st.motion_model
+        if mm.T_world_last is not None:
+            mm.T_world_last = move_pose(S_new_old, mm.T_world_last)
+            mm.T_last_cur = mm.T_last_cur.copy()
+            mm.T_last_cur[:3, 3] *= s
+        if st.T_world_last_good is not None:
+            st.T_world_last_good = move_pose(S_new_old, st.T_world_last_good)
+        st.speed_per_frame *= s
 
     @property
     def motion_model(self) -> MotionModel:
