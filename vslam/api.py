@@ -150,8 +150,12 @@ def run_path(
     trajectory_format: str = "tum",
     topics: str | None = None,
     viz_options: dict | None = None,
+    map_dir: str | Path | None = None,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
+
+    ``map_dir`` (a run folder, or its ``map/``) continues that saved map (:meth:`System.from_map`):
+    the output map is the extended one and the trajectory is in its world frame.
 
     ``dense`` also fuses the keyframes into a TSDF mesh (``mesh.ply``, ``dense.ply``; RGB-D or
     stereo, needs the ``dense`` extra). ``viz`` streams to a rerun viewer (``"rerun"``) or records a file (``"rerun:FILE.rrd"``);
@@ -184,7 +188,7 @@ def run_path(
     ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
     if getattr(ds, "calibration_source", None):
         log.info("camera: %s", ds.calibration_source)
-    system = System(cfg, ds.camera, sensor=sensor)
+    system = System(cfg, ds.camera, sensor=sensor) if map_dir is None else _continue_map(cfg, ds, sensor, map_dir)
     gt = ds.ground_truth()
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
     viewer = on_frame = None
@@ -208,6 +212,22 @@ def run_path(
         if viewer is not None:
             viewer.close()
     return _extra_outputs(result, output, trajectory_format, dense, progress)
+
+
+def _continue_map(cfg, ds, sensor: str, map_dir: str | Path):
+    """A :class:`System` continuing the map saved in ``map_dir`` (same sensor, same image size)."""
+    from vslam.errors import MapFormatError
+    from vslam.map.io import load_map
+    from vslam.system import System
+
+    slam_map, database, camera, meta = load_map(map_dir, database_config=cfg.loop.database)
+    if meta.get("sensor") not in (None, sensor):
+        raise MapFormatError(f"{map_dir}: a {meta.get('sensor')!r} map cannot be continued with {sensor!r} frames")
+    if camera is not None and (camera.width, camera.height) != (ds.camera.width, ds.camera.height):
+        raise MapFormatError(f"{map_dir}: the map's camera is {camera.width}x{camera.height}, the sequence's "
+                             f"{ds.camera.width}x{ds.camera.height}")
+    log.info("continuing the map in %s (%d keyframes)", map_dir, len(slam_map.keyframes))
+    return System.from_map(cfg, ds.camera, sensor, slam_map, database)
 
 
 def _extra_outputs(result, output: str | Path | None, trajectory_format: str, dense: bool, progress: bool):

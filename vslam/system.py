@@ -55,10 +55,11 @@ class System:
         camera: intrinsics of the (left) images.
         sensor: ``mono``, ``stereo`` or ``rgbd``.
         features: a :class:`FeatureConfig` when ``config`` is not a root config.
+        slam_map: a map to build on (see :meth:`from_map`); default a new, empty one.
     """
 
     def __init__(self, config: Any = None, camera: PinholeCamera | None = None, sensor: str = "mono",
-                 features: FeatureConfig | None = None) -> None:
+                 features: FeatureConfig | None = None, slam_map: Map | None = None) -> None:
         if camera is None:
             from vslam.errors import CalibrationError
 
@@ -73,7 +74,7 @@ class System:
         self.feature_config = feat
         self.camera = camera
         self.sensor = sensor
-        self.map = Map()
+        self.map = slam_map if slam_map is not None else Map()
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
         self._init_backend(getattr(config, "backend", None), camera, sensor, feat, fcfg)
@@ -90,6 +91,25 @@ class System:
         self._n = {"frames": 0, "ok": 0, "lost": 0, "initializing": 0}
         self._t_total = 0.0
         self._finished = False
+
+    @classmethod
+    def from_map(cls, config: Any, camera: PinholeCamera, sensor: str, slam_map: Map,
+                 database: Any = None) -> "System":
+        """Continue a saved map (``vslam run --map``; :func:`vslam.map.io.load_map` gives ``slam_map``
+        and ``database``): the first frames are placed in it by global relocalization (bag of words
+        + PnP, :meth:`Tracker.start_in_map`; ``frontend.tracking.max_frames_to_place`` tries, then a
+        new segment starts), new keyframes and points join it, local BA and loop closing see the old
+        keyframes, and every pose is in the loaded map's world frame. Needs loop closing
+        (``loop.enabled``), whose database finds the places."""
+        from vslam.errors import ConfigError
+
+        system = cls(config, camera, sensor=sensor, slam_map=slam_map)
+        if system.loop_closer is None:
+            raise ConfigError("continuing a map needs loop.enabled (its keyframe database places the frames)")
+        system.loop_closer.adopt_keyframes(database)
+        system.tracker.start_in_map(system.frontend_config.tracking.max_frames_to_place)
+        system.loaded_keyframes = len(slam_map.keyframes)
+        return system
 
     # ------------------------------------------------------------------ hooks
     def add_keyframe_listener(self, callback: Callable[[KeyFrame], None]) -> None:
@@ -153,6 +173,9 @@ class System:
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
                                        loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
         self.tracker.set_relocalizer(self.relocalizer)
+        self.loop_closer.merge_listeners.append(self.tracker.segment_merged)  # segments joined (several segments)
+        if self.local_mapper is not None:
+            self.loop_closer.local_ba = self.local_mapper.process
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
@@ -304,6 +327,8 @@ class System:
             "frames_lost": self._n.get("lost", 0),
             "frames_initializing": self._n.get("initializing", 0),
             "map_segments": self.tracker.segment + 1,
+            "segments": len({k.segment for k in self.map.keyframes.values()}),
+            "merges": [m.to_json() for m in self.loop_closer.merges] if self.loop_closer is not None else [],
             "relocalizations": self.tracker.n_relocalized,
             "depth_bridged": self.tracker.n_depth_bridged,
             "depth_refined": self.tracker.n_depth_refined,

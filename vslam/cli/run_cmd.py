@@ -43,6 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="also write the trajectory in this format (trajectory_kitti.txt, trajectory_euroc.csv); "
                         "trajectory.txt stays TUM")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--map", dest="map_dir", metavar="MAP_DIR",
+                   help="continue the map saved by an earlier run (its output folder): frames are placed in it "
+                        "and mapping extends it; the trajectory is in its world frame")
     p.set_defaults(func=run)
     return p
 
@@ -60,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         overrides=args.overrides, max_frames=args.max_frames, start_frame=args.start_frame,
         progress=not args.no_progress, viz=args.viz, dense=args.dense, camera=args.camera,
         trajectory_format=args.trajectory_format, topics=args.topics, viz_options=viz_options,
+        map_dir=args.map_dir,
     )
     s = result.stats
     line = f"{s['tracked']}/{s['frames']} frames tracked, {s.get('lost', 0)} lost, " \

@@ -38,6 +38,7 @@ class TrackingConfig:
     min_inliers: int = param(20, "fewer pose inliers than this means the frame is lost")
     essential_px: float = param(1.0, "2D-2D (essential matrix) RANSAC threshold in pixels")
     max_lost_frames: int = param(3, "after this many consecutive lost frames, re-initialize a new map segment")
+    max_frames_to_place: int = param(30, "continuing a loaded map (vslam run --map): frames tried for a global relocalization in it before a new map segment starts")
     enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search")
     second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers")
     prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers")

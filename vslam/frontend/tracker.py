@@ -18,6 +18,11 @@ run by the keyframe listener).
 A frame with too few inliers is *lost* (no pose); after ``tracking.max_lost_frames`` lost frames the
 tracker re-initializes a new map segment anchored at the last good pose, so a run always continues.
 Corrections of the map (local BA, loop closing) reach the tracker through :meth:`Tracker.apply_correction`.
+
+Continuing a loaded map (:meth:`Tracker.start_in_map`): the tracker starts *placing* instead of
+initializing; each frame is relocalized globally (bag of words + PnP, any segment of the map) until
+one succeeds, and tracking goes on in the segment of the keyframe it was placed against. After
+``max_frames_to_place`` frames without a place, a new segment is bootstrapped (as after a loss).
 """
 from __future__ import annotations
 
@@ -43,6 +48,7 @@ from vslam.frontend.track_local_map import LocalMapTracker
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
+from vslam.map.segment_merge import move_pose, similarity_scale
 
 __all__ = ["BINARY_DETECTORS", "TrackOutput", "Tracker"]
 
@@ -79,6 +85,7 @@ class Tracker:
         self.n_frames = 0
         self.n_relocalized = 0
         self._relocalizer = relocalizer
+        self._place_left = 0  # frames left to place in a loaded map (status "placing")
         binary = feature_cfg.detector in BINARY_DETECTORS
         self.observer = Observer(cfg, feature_cfg, camera, sensor, map_)
         self.keyframes = KeyframeMaker(cfg, feature_cfg, camera, sensor, map_, self.observer, on_keyframe)
@@ -100,6 +107,35 @@ class Tracker:
         """The map moved under the tracker (local BA or a loop correction moved the newest keyframe
         by ``D = T_world_kf_after @ inv(T_world_kf_before)``): move the last poses with it."""
         self.state.apply_correction(T_world_new_from_old)
+
+    def start_in_map(self, max_frames_to_place: int) -> None:
+        """The map holds keyframes of an earlier session: place the next frames in it by global
+        relocalization (any segment) instead of bootstrapping a new segment; after
+        ``max_frames_to_place`` frames that cannot be placed, bootstrap a new segment past the
+        map's highest segment id."""
+        st = self.state
+        st.status = "placing"
+        st.segment = max((k.segment for k in self.map.keyframes.values()), default=-1)
+        self._place_left = int(max_frames_to_place)
+
+    def segment_merged(self, old: int, new: int, S_new_old: np.ndarray) -> None:
+        """Segment ``old`` was joined into ``new``, its world mapped by the similarity ``S_new_old``
+        (:mod:`vslam.loop.segment_merging`): when tracking in ``old``, go on in ``new`` from the
+        moved last poses (the velocity scaled with a monocular merge's scale)."""
+        st = self.state
+        if st.segment != old:
+            return
+        st.segment = new
+        st.local_ids = None
+        s = similarity_scale(S_new_old)
+        mm = st.motion_model
+        if mm.T_world_last is not None:
+            mm.T_world_last = move_pose(S_new_old, mm.T_world_last)
+            mm.T_last_cur = mm.T_last_cur.copy()
+            mm.T_last_cur[:3, 3] *= s
+        if st.T_world_last_good is not None:
+            st.T_world_last_good = move_pose(S_new_old, st.T_world_last_good)
+        st.speed_per_frame *= s
 
     @property
     def motion_model(self) -> MotionModel:
@@ -161,11 +197,13 @@ class Tracker:
         else:
             gray, self.observer.prepared_feats = frame.gray, None
         t0 = time.perf_counter()
-        T_world_pred = st.motion_model.predict() if st.status != "initializing" else None
+        T_world_pred = st.motion_model.predict() if st.status not in ("initializing", "placing") else None
         obs, _ = self.observer.observe(frame, gray, T_world_pred, st.prev, st.prev_gray, st.motion_model.valid)
         self.timers["features"] += time.perf_counter() - t0
         if st.status == "initializing":
             out = self.bootstrap.initialize(frame, gray, obs)
+        elif st.status == "placing":
+            out = self._place(frame, gray, obs)
         else:
             out = self._track_initialized(frame, gray, obs, T_world_pred)
         if self.sensor == "rgbd":
@@ -192,6 +230,12 @@ class Tracker:
                 T_world_cam, n_inl = self._relocalize(obs)
         if T_world_cam is None:
             return self._lost(frame, gray, obs)
+        return self._tracked(frame, gray, obs, T_world_cam, n_inl)
+
+    def _tracked(self, frame: Frame, gray: np.ndarray, obs: Observation, T_world_cam: np.ndarray,
+                 n_inl: int) -> TrackOutput:
+        """The frame has a pose: dense refinement, keyframe decision, state update."""
+        cfg, st = self.cfg, self.state
         if cfg.dense.refine and self.sensor == "rgbd" and cfg.motion != "2d2d" and n_inl < cfg.dense.refine_max_inliers:
             T_world_cam = self.dense.refine(frame, gray, T_world_cam, st.motion_model, st.T_world_last_good)
         t0 = time.perf_counter()
@@ -212,7 +256,28 @@ class Tracker:
         kf = self.keyframes.insert(frame, gray, obs, T_world_cam, self.state.segment)
         self.state.keyframe_inserted(kf.id)
 
-    def _relocalize(self, obs: Observation) -> tuple[np.ndarray | None, int]:
+    def _place(self, frame: Frame, gray: np.ndarray, obs: Observation) -> TrackOutput:
+        """Status ``placing`` (:meth:`start_in_map`): global relocalization in any segment of the
+        loaded map; the frame is reported lost until one is placed."""
+        st = self.state
+        T, n = (None, 0) if self._relocalizer is None else self._relocalize(obs, segment=None, recover=False)
+        if T is not None:
+            st.segment = self.map.keyframes[st.ref_kf].segment
+            log.info("frame %d placed in the loaded map (segment %d) with %d inliers", frame.index, st.segment, n)
+            return self._tracked(frame, gray, obs, T, n)
+        self._place_left -= 1
+        st.set_prev(obs, gray)
+        if self._place_left > 0:
+            return TrackOutput(None, "lost", False, 0)
+        log.warning("no frame placed in the loaded map: starting a new map segment")
+        self._reinitialize()
+        if self.sensor != "mono":
+            obs.point_ids[:] = -1
+            return self.bootstrap.initialize(frame, gray, obs)
+        return TrackOutput(None, "initializing", False, 0)
+
+    def _relocalize(self, obs: Observation, segment: int | None | str = "current",
+                    recover: bool = True) -> tuple[np.ndarray | None, int]:
         """Tracking against the local map failed: find the pose among all keyframes of this map
         segment (bag-of-words candidates + PnP, :class:`vslam.loop.relocalization.Relocalizer`),
         then refine it against that keyframe's local map. First (no place recognition) against the
@@ -220,10 +285,10 @@ class Tracker:
         wide-baseline motion the constant-velocity prediction is useless but the map is not."""
         st = self.state
         r = None
-        if hasattr(self._relocalizer, "recover") and st.ref_kf is not None:
+        if recover and hasattr(self._relocalizer, "recover") and st.ref_kf is not None:
             r = self._relocalizer.recover(obs, [st.ref_kf, st.last_kf])
         if r is None:
-            r = self._relocalizer(obs, segment=st.segment)
+            r = self._relocalizer(obs, segment=st.segment if segment == "current" else segment)
         if r is None:
             return None, 0
         st.ref_kf = r.keyframe_id

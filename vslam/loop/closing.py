@@ -64,6 +64,7 @@ from vslam.loop.config import LoopConfig
 from vslam.loop.detector import LoopDetector
 from vslam.loop.essential_graph import EssentialGraph, build_essential_graph, write_back_corrections
 from vslam.loop.loop_fusion import fuse_loop_points
+from vslam.loop.segment_merging import try_merge
 from vslam.loop.verification import Features, Verified, VerifyParams, verify
 from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
 from vslam.map.config import PoseGraphConfig
@@ -156,8 +157,26 @@ class LoopCloser:
         self._t_total = 0.0
         self._n_processed = 0
         self.correction_listeners: list[Callable[[int, np.ndarray, np.ndarray], None]] = []
+        # joining segments (vslam.loop.segment_merging): the records, listeners hearing (old segment,
+        # new segment, S_new_old), and the local BA around the seam (``local_ba(kf_id)``, the system's)
+        self.merges: list = []
+        self.merge_listeners: list[Callable[[int, int, np.ndarray], None]] = []
+        self.local_ba: Callable[[int], object] | None = None
 
     # ------------------------------------------------------------------ feeding
+    def adopt_keyframes(self, database: KeyframeDatabase | None = None) -> None:
+        """The map was loaded with keyframes of an earlier session: enter them in this closer's
+        database (their saved BoW vectors from ``database``, else from their descriptors), so loop
+        detection and relocalization find them."""
+        for k in sorted(self.map.keyframes):
+            kf = self.map.keyframes[k]
+            if k in self.database or kf.bad:
+                continue
+            if database is not None and k in database:
+                self.database.add(k, database.bow(k))
+            elif kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
+                self.database.add(k, self.vocabulary.transform(kf.descriptors)[0])
+
     def on_keyframe(self, kf: KeyFrame) -> None:
         """Keyframe listener: queue ``kf`` (processed by :meth:`after_frame`, or by the worker
         thread in realtime mode)."""
@@ -227,6 +246,9 @@ class LoopCloser:
                     prepared = self._prepare_correction(kf, match_id, ver, cand.score)
                     break
             if prepared is None:
+                others = [i for i in cand.group if i not in exclude and i not in same and i in self.map.keyframes]
+                if others and try_merge(self, kf, others) is not None:
+                    return None
                 self.rejected += 1
                 return None
             self.detector.reset()
@@ -450,4 +472,5 @@ class LoopCloser:
             "loop_ms_mean": round(float(np.mean(self._times)), 1) if self._times else 0.0,
             "ms_per_keyframe": round(1e3 * self._t_total / max(self._n_processed, 1), 2),
             "keyframes_processed": self._n_processed,
+            "merges": [m.to_json() for m in self.merges],
         }
