@@ -153,7 +153,8 @@ def test_slow_consumer_gets_the_newest_frame_and_drops_count(monkeypatch, camera
         assert np.array_equal(frame.image, images[frame.index])
         time.sleep(0.025)
     assert counts == {"captured_frames": N, "dropped_frames": N - len(seen)}
-    assert 4 <= len(seen) <= 20 and seen[0] == 0 and seen[-1] == N - 1
+    # the newest frame always arrives; under CPU load the first ones may already be replaced
+    assert 2 <= len(seen) <= 20 and seen[0] <= 5 and seen[-1] == N - 1
     assert np.all(np.diff(seen) >= 1) and max(np.diff(seen)) >= 3
 
 
