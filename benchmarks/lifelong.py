@@ -67,7 +67,7 @@ def run_lifelong(n_frames: int = 3000, laps: int = 10, seed: int = 0, width: int
         "map_points_alive": int(np.count_nonzero(system.map.points.alive[: len(system.map.points)])),
         "fps_per_lap": [round(f / t, 1) for f, t in zip(lap_frames, lap_time)],
         "rss_mb": {str(k): v for k, v in sorted(rss.items())},
-        "tracked": stats.get("tracked_ratio", stats.get("ok")),
+        "frames_lost": stats["frames_lost"], "map_segments": stats["map_segments"], "loops": len(stats["loops"]),
     }
 
 
