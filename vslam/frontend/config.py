@@ -100,6 +100,10 @@ class KeyframesConfig:
     # correction falls short (error /3.8 instead of /5): kept at 0.7.
     tracked_ratio_mono: float = param(0.7, "the same tracked-points ratio for monocular")
     translation_m: float = param(0.0, "insert when moved farther than this from the reference keyframe, metres (0: off)")
+    # issue #18 item 5 (a map that grows with the place): ORB-SLAM's reference keyframe is the one
+    # sharing most points with the frame; here it switches only to an *old* keyframe (a revisit), so
+    # single-pass runs keep the newest keyframe as their reference.
+    revisit_min_age: int = param(20, "revisit: when a keyframe this many keyframes older than the newest shares the most points with the frame, it becomes the reference (local map centre) and max_frames stops forcing keyframes (0: off)")
     # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
     close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...")
     close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points")

@@ -125,13 +125,45 @@ class KeyframeMaker:
         obs.point_ids[cand] = ids
 
 
+def revisit_reference(map_: Map, local_kfs: list[int], point_ids: np.ndarray, last_kf: int | None,
+                      min_age: int) -> int | None:
+    """The old keyframe the frame is revisiting, or None: among the local map's keyframes the one
+    observing most of the frame's tracked points (ORB-SLAM's UpdateLocalKeyFrames ``pKFmax``),
+    when it is at least ``min_age`` keyframes older than the newest ``last_kf``.
+
+    Tracking around that keyframe's covisible neighbours follows the old map along the revisited
+    path, so a lap over a mapped place reuses its keyframes instead of adding new ones."""
+    if min_age <= 0 or last_kf is None or len(local_kfs) < 2:
+        return None
+    ids = point_ids[point_ids >= 0]
+    if len(ids) == 0:
+        return None
+    n = len(map_.points)
+    mine = np.zeros(n, dtype=bool)
+    mine[ids[ids < n]] = True
+    best, best_n = None, 0
+    for k in local_kfs:
+        kf = map_.keyframes.get(k)
+        if kf is None or kf.bad:
+            continue
+        shared = int(mine[kf.observed_ids()].sum())
+        if shared > best_n or (shared == best_n and best is not None and k < best):
+            best, best_n = k, shared
+    if best is None or best > last_kf - min_age:
+        return None
+    return best
+
+
 def decide_keyframe(cfg: FrontendConfig, sensor: str, obs: Observation, T_world_cam: np.ndarray, ref: KeyFrame | None,
-                    frames_since_kf: int, n_ref_tracked: int, n_inliers: int, dense_wants: bool) -> bool:
+                    frames_since_kf: int, n_ref_tracked: int, n_inliers: int, dense_wants: bool,
+                    revisiting: bool = False) -> bool:
     """ORB-SLAM's NeedNewKeyFrame (:func:`vslam.frontend.keyframe_policy.need_keyframe`) with the
     forcing reasons: KLT tracks running out, few close tracked points for depth sensors (ORB-SLAM2
     "close points"), a frame posed by dense alignment (``dense_wants``). ``n_ref_tracked``: map
     points the first frame after the reference keyframe tracked (it factors out the detector's
-    frame-to-frame repeatability)."""
+    frame-to-frame repeatability). ``revisiting`` (the reference is an old keyframe,
+    :func:`revisit_reference`): elapsed frames alone (``keyframes.max_frames``) do not make a
+    keyframe, as in ORB-SLAM where they only permit one when tracking is weak."""
     n_tracked = int((obs.point_ids >= 0).sum())
     force = False
     if cfg.association == "track":
@@ -143,7 +175,8 @@ def decide_keyframe(cfg: FrontendConfig, sensor: str, obs: Observation, T_world_
     force |= dense_wants
     moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
     ratio = cfg.keyframes.tracked_ratio_mono if sensor == "mono" else cfg.keyframes.tracked_ratio
-    is_kf = need_keyframe(cfg, frames_since_kf, n_tracked, n_ref_tracked, n_inliers, moved, force, ratio)
+    since = min(frames_since_kf, cfg.keyframes.max_frames - 1) if revisiting else frames_since_kf
+    is_kf = need_keyframe(cfg, since, n_tracked, n_ref_tracked, n_inliers, moved, force, ratio)
     log.debug("%d inliers, %d/%d of the reference keyframe's points, force %s -> keyframe %s",
               n_inliers, n_tracked, n_ref_tracked, force, is_kf)
     return is_kf

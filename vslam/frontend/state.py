@@ -39,6 +39,7 @@ class TrackingState:
         speed_per_frame: distance of the last tracked step (scales a re-initialized monocular segment).
         motion_model: constant-velocity prediction.
         local_ids: cached map point ids of the local map (None: recompute).
+        revisiting: the reference is an old keyframe the frame revisits (until the next keyframe).
     """
 
     status: str = "initializing"
@@ -54,6 +55,7 @@ class TrackingState:
     speed_per_frame: float = 0.0
     motion_model: MotionModel = field(default_factory=MotionModel)
     local_ids: np.ndarray | None = None
+    revisiting: bool = False
 
     def origin(self) -> np.ndarray:
         """Where a new map segment starts: the last good pose, or the identity."""
@@ -92,6 +94,7 @@ class TrackingState:
         self.local_ids = None
         self.frames_since_kf = 0
         self.kf_ref_tracked = None
+        self.revisiting = False
 
     def apply_correction(self, D: np.ndarray) -> None:
         """The map moved by ``D = T_world_new_from_old`` (local BA or a loop correction moved the

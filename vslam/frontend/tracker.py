@@ -37,7 +37,7 @@ from vslam.features.config import FeatureConfig
 from vslam.frontend.bootstrap import Bootstrap
 from vslam.frontend.config import FrontendConfig
 from vslam.frontend.dense_refine import DenseTracker
-from vslam.frontend.keyframes import KeyframeMaker, decide_keyframe
+from vslam.frontend.keyframes import KeyframeMaker, decide_keyframe, revisit_reference
 from vslam.frontend.motion_2d2d import TwoViewTracker
 from vslam.frontend.motion_model import MotionModel
 from vslam.frontend.observation import Observation
@@ -245,12 +245,30 @@ class Tracker:
         if st.frames_since_kf == 1 or st.kf_ref_tracked is None:
             st.kf_ref_tracked = int((obs.point_ids >= 0).sum())
         is_kf = decide_keyframe(cfg, self.sensor, obs, T_world_cam, self.map.keyframes.get(st.ref_kf),
-                                st.frames_since_kf, st.kf_ref_tracked, n_inl, self.dense.wants_keyframe())
+                                st.frames_since_kf, st.kf_ref_tracked, n_inl, self.dense.wants_keyframe(), st.revisiting)
         if is_kf:
             self._insert_keyframe(frame, gray, obs, T_world_cam)
+        else:
+            self._follow_revisit(obs)
         self.timers["mapping"] += time.perf_counter() - t0
         st.tracked(T_world_cam, obs, gray)
         return TrackOutput(T_world_cam, "ok", is_kf, n_inl, st.ref_kf)
+
+    def _follow_revisit(self, obs: Observation) -> None:
+        """On a revisit the reference keyframe (and the local map around it) moves to the old
+        keyframe sharing most points with this frame (:func:`revisit_reference`); the tracked-points
+        ratio of the keyframe decision restarts from the next frame's count."""
+        st = self.state
+        if st.ref_kf is None or self.cfg.keyframes.revisit_min_age <= 0 or self.cfg.motion == "2d2d":
+            return
+        best = revisit_reference(self.map, self.map.local_keyframes(st.ref_kf, self.cfg.local_map.keyframes),
+                                 obs.point_ids, st.last_kf, self.cfg.keyframes.revisit_min_age)
+        if best is not None and best != st.ref_kf:
+            log.debug("revisit: reference keyframe %s -> %d", st.ref_kf, best)
+            st.ref_kf = best
+            st.local_ids = None
+            st.kf_ref_tracked = None
+            st.revisiting = True
 
     def _insert_keyframe(self, frame: Frame, gray: np.ndarray, obs: Observation, T_world_cam: np.ndarray) -> None:
         kf = self.keyframes.insert(frame, gray, obs, T_world_cam, self.state.segment)
@@ -354,6 +372,7 @@ class Tracker:
         st.ref_kf = None
         st.last_kf = None
         st.local_ids = None
+        st.revisiting = False
         self.two_view.reset()
         if st.motion_model.T_world_last is not None:
             st.T_world_last_good = st.motion_model.T_world_last.copy()
