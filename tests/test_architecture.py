@@ -41,7 +41,6 @@ SIZE_EXCEPTIONS = {
     "vslam/localize.py",
     "vslam/runner.py",
     "vslam/reconstruction/rundir.py",
-    "vslam/backend/schur_kernels.py",  # one numba loop (linearize); to be split into compiled helpers
 }
 
 
