@@ -26,7 +26,13 @@ Sec. VI-B):
    strongest covisible one) rigidly from then on.
 
 Modes: ``deterministic`` queues keyframes and processes them inline when :meth:`LocalMapper.after_frame`
-is called (the same result every run); ``realtime`` processes them in a background thread, taking
+is called (the same result every run); ``parallel`` snapshots the problem at the end of the keyframe's
+frame, solves it in a worker (a child process, or a thread: ``parallel_worker``) while the next
+frames are tracked, and writes it back at the end of the ``lag_frames``-th frame after (or of the
+frame bringing the next keyframe, if sooner), waiting for the worker if need be: the result
+depends on frame counts only, so every run is the same too. Keyframes made between snapshot and
+write-back follow the newest optimized keyframe (as after a global BA), and loop closing sees a
+keyframe after its write-back (:class:`vslam.map.keyframe_queue.LaggedQueue`); ``realtime`` processes them in a background thread, taking
 ``lock`` only to snapshot the problem and to write the result back, so tracking (which holds the
 same lock while it touches the map) never waits for a solve. When keyframes arrive faster than
 BAs finish, only the newest waiting keyframe is optimized (its window covers the others).

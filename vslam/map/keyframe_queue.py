@@ -100,6 +100,16 @@ class KeyframeQueue:
                 log.exception("%s failed on keyframe %d", self.name, kf_id)
 
 
+def _can_spawn() -> bool:
+    """A ``spawn`` child is possible: not from a daemonic process, and the main module imports
+    again without re-running (see :func:`vslam.datasets.prefetch.choose_prefetch`)."""
+    import multiprocessing
+
+    from vslam.datasets.prefetch import _main_is_reimportable
+
+    return not multiprocessing.current_process().daemon and _main_is_reimportable()
+
+
 class LaggedQueue:
     """``backend.mode=parallel``: a keyframe's work in three steps, the middle one in a worker thread,
     the result used at a fixed point of the frame sequence, so every run gives the same result.
@@ -148,6 +158,9 @@ class LaggedQueue:
             self._executor = self._start()
 
     def _start(self):
+        if self.worker == "process" and not _can_spawn():
+            log.info("%s: a child process cannot be started from here; solving in a thread", self.name)
+            self.worker = "thread"
         if self.worker != "process":
             from concurrent.futures import ThreadPoolExecutor
 
