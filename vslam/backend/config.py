@@ -124,7 +124,7 @@ class BackendConfig:
     local_ba: bool = param(True, "run windowed BA after each keyframe (graph backend)")
     mode: Literal["deterministic", "parallel", "realtime"] = param("deterministic", "deterministic (local mapping inline, same result every run), parallel (local BA solved in a worker thread, applied at a fixed frame lag: same result every run) or realtime (background worker)")
     parallel_worker: Literal["thread", "process"] = param("process", "parallel mode: the local BA solve runs in a child process (no GIL shared with tracking) or a thread")
-    lag_frames: int = param(4, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first")
+    lag_frames: int = param(8, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first")
     final_ba: bool = param(False, "run a full global bundle adjustment at the end of the run")
     covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones")
     max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed")
