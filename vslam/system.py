@@ -169,13 +169,23 @@ class System:
                                       lock=self._map_lock, global_ba=gba, pose_graph=pg,
                                       realtime=getattr(self._backend_cfg, "mode", "deterministic") == "realtime")
         self.loop_closer.correction_listeners.append(self._on_loop_correction)
-        self.add_keyframe_listener(self.loop_closer.on_keyframe)
+        lm = self.local_mapper
+        if lm is not None and lm.config.mode == "parallel" and lm.config.local_ba:
+            # parallel local BA: a keyframe reaches loop closing once its local BA is in the map (as in
+            # deterministic mode, where loop closing runs after local mapping in the same frame)
+            lm.settled_listeners.append(self._loop_after_local_mapping)
+        else:
+            self.add_keyframe_listener(self.loop_closer.on_keyframe)
         self.relocalizer = Relocalizer(self.map, camera, sensor, self.loop_closer.vocabulary, self.loop_closer.database,
                                        loop_cfg.relocalization, feat.scale_factor, self.loop_closer.bf)
         self.tracker.set_relocalizer(self.relocalizer)
         self.loop_closer.merge_listeners.append(self.tracker.segment_merged)  # segments joined (several segments)
         if self.local_mapper is not None:
             self.loop_closer.local_ba = self.local_mapper.process
+
+    def _loop_after_local_mapping(self, kf: KeyFrame) -> None:
+        self.loop_closer.on_keyframe(kf)
+        self.loop_closer.after_frame()
 
     def _on_loop_correction(self, kf_id: int, T_world_kf_before: np.ndarray, T_world_kf_after: np.ndarray) -> None:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""

@@ -122,7 +122,9 @@ class BackendConfig:
 
     type: Literal["graph", "ekf"] = param("graph", "graph (windowed BA + pose graph / global BA) or ekf (constant-velocity Kalman filter)")
     local_ba: bool = param(True, "run windowed BA after each keyframe (graph backend)")
-    mode: Literal["deterministic", "realtime"] = param("deterministic", "deterministic (local mapping inline, same result every run) or realtime (background worker)")
+    mode: Literal["deterministic", "parallel", "realtime"] = param("deterministic", "deterministic (local mapping inline, same result every run), parallel (local BA solved in a worker thread, applied at a fixed frame lag: same result every run) or realtime (background worker)")
+    parallel_worker: Literal["thread", "process"] = param("process", "parallel mode: the local BA solve runs in a child process (no GIL shared with tracking) or a thread")
+    lag_frames: int = param(8, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first")
     final_ba: bool = param(False, "run a full global bundle adjustment at the end of the run")
     covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones")
     max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed")
@@ -169,6 +171,12 @@ class BackendConfig:
     frame_correction: Literal["reference", "interpolate"] = param("interpolate", "frames between keyframes follow them: reference (their reference keyframe) or interpolate (blend by time)")
 
     def __post_init__(self) -> None:
+        if self.mode not in ("deterministic", "parallel", "realtime"):
+            raise ConfigError(f"backend mode must be deterministic, parallel or realtime, got {self.mode!r}")
+        if self.parallel_worker not in ("thread", "process"):
+            raise ConfigError(f"backend parallel_worker must be thread or process, got {self.parallel_worker!r}")
+        if self.lag_frames < 1:
+            raise ConfigError(f"backend lag_frames must be >= 1, got {self.lag_frames}")
         if self.frame_correction not in ("reference", "interpolate"):
             raise ConfigError(f"backend frame_correction must be 'reference' or 'interpolate', got {self.frame_correction!r}")
         if self.mono_min_observations < 2:

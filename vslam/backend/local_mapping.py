@@ -26,7 +26,13 @@ Sec. VI-B):
    strongest covisible one) rigidly from then on.
 
 Modes: ``deterministic`` queues keyframes and processes them inline when :meth:`LocalMapper.after_frame`
-is called (the same result every run); ``realtime`` processes them in a background thread, taking
+is called (the same result every run); ``parallel`` snapshots the problem at the end of the keyframe's
+frame, solves it in a worker (a child process, or a thread: ``parallel_worker``) while the next
+frames are tracked, and writes it back at the end of the ``lag_frames``-th frame after (or of the
+frame bringing the next keyframe, if sooner), waiting for the worker if need be: the result
+depends on frame counts only, so every run is the same too. Keyframes made between snapshot and
+write-back follow the newest optimized keyframe (as after a global BA), and loop closing sees a
+keyframe after its write-back (:class:`vslam.map.keyframe_queue.LaggedQueue`); ``realtime`` processes them in a background thread, taking
 ``lock`` only to snapshot the problem and to write the result back, so tracking (which holds the
 same lock while it touches the map) never waits for a solve. When keyframes arrive faster than
 BAs finish, only the newest waiting keyframe is optimized (its window covers the others).
@@ -40,18 +46,19 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bundle_adjustment
-from vslam.backend.config import BackendConfig
+from vslam.backend.config import BackendConfig, LocalBAConfig
 from vslam.backend.culling import Culling
 from vslam.backend.fuse import NeighbourFusion
 from vslam.backend.local_problem import LocalProblemBuilder, ProblemContext, max_parallax_deg
 from vslam.backend.map_writeback import PointWriteback
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
-from vslam.map.keyframe_queue import KeyframeQueue
+from vslam.map.keyframe_queue import KeyframeQueue, LaggedQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.new_points import KeyframeMapping, NewPointsParams
@@ -59,6 +66,35 @@ from vslam.map.new_points import KeyframeMapping, NewPointsParams
 __all__ = ["LocalMapper", "max_parallax_deg"]
 
 LOG = logging.getLogger(__name__)
+
+
+@dataclass
+class _Job:
+    """One local BA between its snapshot and its write-back: the problem, its context, the loop
+    epoch it was built in, the dense links appended, the keyframes that existed (parallel mode) and
+    the time the snapshot took."""
+
+    kf_id: int
+    problem: BAProblem
+    ctx: ProblemContext
+    epoch: int
+    n_links: int
+    known: set[int] | None
+    prepare_s: float
+
+
+def solve_job(config: LocalBAConfig, job: _Job) -> BAResult | str:
+    """The solve alone: touches only ``job`` (the worker's part in parallel mode, in a thread or a
+    child process); a failure comes back as its message."""
+    try:
+        return local_bundle_adjustment(job.problem, config)
+    except Exception as exc:
+        return f"{type(exc).__name__}: {exc}"
+
+
+def warm_worker() -> None:
+    """Parallel mode, process worker: load the compiled kernels in the child before the first job."""
+    from vslam.backend import schur_kernels  # noqa: F401
 
 
 class LocalMapper:
@@ -85,8 +121,20 @@ class LocalMapper:
         self.sensor = sensor
         self.scale_factor = float(scale_factor)
         self.lock = lock if lock is not None else threading.RLock()
-        self._queue = KeyframeQueue(self.process, self.config.mode == "realtime", "vslam-local-mapping",
-                                    newest_only=True)
+        self._parallel = self.config.mode == "parallel"
+        if self._parallel:
+            import functools
+
+            worker = self.config.parallel_worker
+            solve = functools.partial(solve_job, self.config.local) if worker == "process" else self._solve
+            self._queue = LaggedQueue(self._prepare, solve, self._finish, self._settled, self.config.lag_frames,
+                                      "vslam-local-ba", worker=worker, warm=warm_worker)
+        else:
+            self._queue = KeyframeQueue(self.process, self.config.mode == "realtime", "vslam-local-mapping",
+                                        newest_only=True)
+        # parallel mode: called as ``cb(keyframe)`` once a keyframe's local BA is in the map (the System
+        # runs loop closing there, after local mapping as in deterministic mode)
+        self.settled_listeners: list = []
         self._stop = False
         self._times: list[float] = []
         self._solve_times: list[float] = []
@@ -118,7 +166,8 @@ class LocalMapper:
         self._queue.put(kf.id)
 
     def after_frame(self) -> None:
-        """Deterministic mode: process the keyframes queued while tracking this frame (inline)."""
+        """Deterministic mode: process the keyframes queued while tracking this frame (inline);
+        parallel mode: write back the local BA whose lag is over, hand the new keyframe's to the worker."""
         self._queue.run_pending()
 
     def finish(self) -> None:
@@ -128,6 +177,14 @@ class LocalMapper:
     # ------------------------------------------------------------------ one local BA
     def process(self, kf_id: int) -> BAResult | None:
         """Windowed BA around keyframe ``kf_id``, write-back and culling."""
+        job = self._prepare(kf_id)
+        if job is None:
+            return None
+        return self._finish(job, self._solve(job))
+
+    def _prepare(self, kf_id: int) -> _Job | None:
+        """Under the lock: fuse the neighbours, build the window problem (a snapshot: its arrays are
+        copies, so :meth:`_solve` may run in another thread while tracking edits the map)."""
         t0 = time.perf_counter()
         with self.lock:
             if self.config.fuse and (self.sensor != "mono" or self.config.fuse_mono):
@@ -140,36 +197,57 @@ class LocalMapper:
 
                 linked, n_links = add_dense_links(built[0], self.dense_links)
                 built = (linked, built[1])
+            known = set(self.map.keyframes) if self._parallel else None
         if built is None:
             return None
-        problem, ctx = built
-        try:
-            result = local_bundle_adjustment(problem, self.config.local)
-        except Exception as exc:  # GeometryError or a singular system: keep the map as it is
+        return _Job(kf_id, built[0], built[1], epoch, n_links, known, time.perf_counter() - t0)
+
+    def _solve(self, job: _Job) -> BAResult | str:
+        return solve_job(self.config.local, job)
+
+    def _finish(self, job: _Job, result: BAResult | str) -> BAResult | None:
+        """Under the lock: write the result back and cull. Parallel mode: keyframes made after the
+        snapshot follow the newest optimized keyframe of their segment (as after a global BA)."""
+        if isinstance(result, str):  # GeometryError or a singular system: keep the map as it is
             self.counts["failed"] += 1
-            LOG.warning("local BA on keyframe %d failed: %s", kf_id, exc)
+            LOG.warning("local BA on keyframe %d failed: %s", job.kf_id, result)
             return None
-        if n_links:
+        t0 = time.perf_counter()
+        kf_id, problem, ctx = job.kf_id, job.problem, job.ctx
+        if job.n_links:
             from vslam.backend.dense_links import strip_dense_links
 
-            problem, result = strip_dense_links(problem, result, n_links)
+            problem, result = strip_dense_links(problem, result, job.n_links)
         with self.lock:
-            if self.map.loop_epoch != epoch:  # realtime: a loop correction moved the map meanwhile
+            if self.map.loop_epoch != job.epoch:  # realtime: a loop correction moved the map meanwhile
                 self.counts["stale_dropped"] = self.counts.get("stale_dropped", 0) + 1
                 LOG.info("local BA on keyframe %d dropped: a loop correction moved the map meanwhile", kf_id)
                 return None
+            before = None
+            if job.known is not None and len(self.map.keyframes) > len(job.known):
+                before = {k: self.map.keyframes[k].T_world_cam.copy() for k in result.kf_ids.tolist()
+                          if k in self.map.keyframes}
             self._apply(problem, result, ctx)
+            if before is not None:
+                self._propagate_to_new_keyframes(before, job.known)
             self.culling.cull_points(kf_id)
             if self.config.cull_keyframes:
                 self.culling.cull_keyframes(kf_id)
             self._update_bad_keyframes()
-        self._times.append(time.perf_counter() - t0)
+        self._times.append(job.prepare_s + time.perf_counter() - t0 + (0.0 if self._parallel else result.time_s))
         self._solve_times.append(result.time_s)
         self.counts["local_ba_calls"] += 1
         LOG.debug("local BA kf %d: %d kfs (%d fixed), %d pts, rms %.2f -> %.2f px, %.0f ms", kf_id,
                   problem.num_keyframes, len(ctx.fixed), problem.num_points, result.initial_rms_px,
                   result.final_rms_px, 1e3 * result.time_s)
         return result
+
+    def _settled(self, kf_id: int) -> None:
+        """Parallel mode: keyframe ``kf_id``'s local mapping is in the map (loop closing plugs in here)."""
+        kf = self.map.keyframes.get(kf_id)
+        if kf is not None:
+            for cb in self.settled_listeners:
+                cb(kf)
 
     def _window(self, kf: KeyFrame) -> tuple[list[int], list[int]]:
         """``(optimized keyframe ids, constant keyframe ids)`` of the local BA around ``kf``."""
@@ -253,6 +331,8 @@ class LocalMapper:
         solve (and the points they created) move with the newest optimized keyframe of their segment
         (ORB-SLAM2's RunGlobalBundleAdjustment propagation through the spanning tree). A result made
         stale by a loop correction during the solve is dropped."""
+        if self._parallel:
+            self._queue.settle()  # no local BA in flight during a global one
         with self.lock:
             kfs = [k for k in self.map.keyframes.values() if not k.bad]
             if len(kfs) < 2:
@@ -334,9 +414,12 @@ class LocalMapper:
     def stats(self) -> dict:
         t = np.asarray(self._times)
         out: dict = dict(self.counts)
-        out["local_ba_skipped"] += self._queue.skipped  # realtime: keyframes that piled up
+        out["local_ba_skipped"] += getattr(self._queue, "skipped", 0)  # realtime: keyframes that piled up
         out["failed"] += self._queue.failed
-        out["mode"] = "realtime" if self.config.mode == "realtime" else "deterministic"
+        out["mode"] = self.config.mode
+        if self._parallel:
+            out["lag_frames"] = self.config.lag_frames
+            out["local_ba_wait_ms_total"] = round(1e3 * self._queue.wait_s, 1)
         out["local_ba_ms_mean"] = round(1e3 * float(t.mean()), 2) if len(t) else 0.0
         out["local_ba_ms_median"] = round(1e3 * float(np.median(t)), 2) if len(t) else 0.0
         out["local_ba_ms_total"] = round(1e3 * float(t.sum()), 1)
