@@ -343,7 +343,7 @@ def _conclude(tracker: FrameTracker, stats: dict, error: str | None, spec: _RunS
     output_error = None
     if error is None:
         if out is not None:
-            output_error = _write_outputs(tracker, out, trajectory, stats, spec.extra_stats)
+            output_error = _write_outputs(tracker, out, trajectory, stats, spec.extra_stats, spec.progress)
         if spec.ground_truth is not None and len(trajectory) >= 3:
             stats.update(trajectory_errors(trajectory, spec.ground_truth, spec.align))
     if out is not None:
@@ -369,7 +369,7 @@ def _write_final_stats(out: Path, stats: dict, error: str | None, output_error: 
 
 
 def _write_outputs(tracker: Any, out: Path, trajectory: Trajectory, stats: dict,
-                   extra_stats: dict | None) -> str | None:
+                   extra_stats: dict | None, progress: bool = False) -> str | None:
     """Write the final trajectory, the keyframes and the map outputs (those the tracker has);
     the first failure as one line (or None)."""
     step = out / "trajectory.txt"
@@ -382,7 +382,10 @@ def _write_outputs(tracker: Any, out: Path, trajectory: Trajectory, stats: dict,
                 write_tum(tmp, tracker.keyframe_trajectory())
         if hasattr(tracker, "save_map_outputs"):
             step = out / "map"  # with sparse.ply and topology.*
-            stats["outputs"] = tracker.save_map_outputs(out, metadata=extra_stats)
+            from tqdm import tqdm
+
+            with tqdm(desc="saving map", unit="step", disable=not progress, file=sys.stderr, leave=False) as bar:
+                stats["outputs"] = tracker.save_map_outputs(out, metadata=extra_stats, progress=bar)
     except OutputError as exc:
         return str(exc)
     except OSError as exc:

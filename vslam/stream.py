@@ -16,7 +16,8 @@ Both :class:`vslam.system.System` (SLAM) and :class:`vslam.localizer.Localizer` 
 a fixed map) satisfy it. Optional hooks the run loop uses when a tracker has them:
 
 * ``keyframe_trajectory()`` -> ``keyframes.txt``;
-* ``save_map_outputs(directory, metadata=...)`` -> the map outputs, returning their summary;
+* ``save_map_outputs(directory, metadata=..., progress=...)`` -> the map outputs, returning their summary
+  (``progress``: a tqdm-like bar advanced once per file);
 * ``prepare(frame)`` (called in the decoding thread ahead of ``track``), ``frame_preparer()`` and
   ``adopt_prepared(frame, result, seconds)`` (the same work in a decoding process), see
   :func:`vslam.datasets.prefetch.prefetch` / :func:`~vslam.datasets.prefetch.prefetch_process`.

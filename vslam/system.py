@@ -232,9 +232,10 @@ class System:
             self.loop_closer.after_frame()
         return TrackResult(frame.index, frame.timestamp, T_out, out.state, out.is_keyframe, out.n_inliers)
 
-    def save_map_outputs(self, directory: str | Path, metadata: dict | None = None) -> dict:
+    def save_map_outputs(self, directory: str | Path, metadata: dict | None = None, progress: Any = None) -> dict:
         """Write the sparse map (``sparse.ply``), the topological map (``topology.json``/``.png``)
-        and the reloadable map (``map/``, with the bag-of-words database when loop closing ran)."""
+        and the reloadable map (``map/``, with the bag-of-words database when loop closing ran).
+        ``progress``: an optional tqdm-like bar, advanced once per file written."""
         from vslam.reconstruction.map_outputs import write_map_outputs
 
         lc = self.loop_closer
@@ -242,7 +243,8 @@ class System:
         with self._map_lock:
             return write_map_outputs(directory, self.map, camera=self.camera,
                                      database=lc.database if lc is not None else None,
-                                     loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})})
+                                     loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})},
+                                     progress=progress)
 
     def _color_new_points(self, frame: Frame) -> None:
         """Give the newest keyframe's not yet coloured map points the colour of this frame's image

@@ -254,7 +254,7 @@ def test_disk_full_while_tracking(capsys, seq, tmp_path, monkeypatch):
 def test_map_save_failure_is_an_error(capsys, seq, tmp_path, monkeypatch):
     from vslam.system import System
 
-    def full(self, out, metadata=None):
+    def full(self, out, metadata=None, progress=None):
         raise OSError(errno.ENOSPC, "No space left on device", str(out / "map"))
 
     monkeypatch.setattr(System, "save_map_outputs", full)

@@ -43,19 +43,28 @@ def topology_graph(slam_map: Map, loops: list[tuple[int, int, int]] = (), min_co
 
 
 def write_map_outputs(out_dir: str | Path, slam_map: Map, camera: Any = None, database: Any = None,
-                      loops_kf: list[tuple[int, int, int]] = (), metadata: dict | None = None) -> dict:
-    """Write ``sparse.ply``, ``topology.json``, ``topology.png`` and ``map/`` into ``out_dir``."""
+                      loops_kf: list[tuple[int, int, int]] = (), metadata: dict | None = None,
+                      progress: Any = None) -> dict:
+    """Write ``sparse.ply``, ``topology.json``, ``topology.png`` and ``map/`` into ``out_dir``.
+    ``progress``: an optional tqdm-like bar (``total``, ``update``), advanced once per output."""
     out = Path(out_dir)
     store = slam_map.points
     n = len(store)
     alive = store.alive[:n]
     X = store.position[:n][alive]
     colors = store.color[:n][alive]
-    written = {"sparse": export_sparse(out / "sparse.ply", X, colors if colors.any() else None)}
     nodes, edges = topology_graph(slam_map, loops_kf)
+    steps = [("sparse", lambda: export_sparse(out / "sparse.ply", X, colors if colors.any() else None))]
     if nodes:
-        written["topology"] = write_topology(out / "topology.json", nodes, edges)
-        written["topology_png"] = plot_topology(out / "topology.png", nodes, edges)
-    written["map"] = save_map(slam_map, out, database=database, camera=camera, metadata=metadata or {})
+        steps += [("topology", lambda: write_topology(out / "topology.json", nodes, edges)),
+                  ("topology_png", lambda: plot_topology(out / "topology.png", nodes, edges))]
+    steps.append(("map", lambda: save_map(slam_map, out, database=database, camera=camera, metadata=metadata or {})))
+    if progress is not None:
+        progress.total = len(steps)
+    written = {}
+    for name, write in steps:
+        written[name] = write()
+        if progress is not None:
+            progress.update(1)
     log.info("map outputs: %d points, %d keyframes -> %s", int(alive.sum()), len(nodes), out)
     return {k: str(v) for k, v in written.items()}
