@@ -103,7 +103,9 @@ class KeyframesConfig:
     # issue #18 item 5 (a map that grows with the place): ORB-SLAM's reference keyframe is the one
     # sharing most points with the frame; here it switches only to an *old* keyframe (a revisit), so
     # single-pass runs keep the newest keyframe as their reference.
-    revisit_min_age: int = param(20, "revisit: when a keyframe this many keyframes older than the newest shares the most points with the frame, it becomes the reference (local map centre) and max_frames stops forcing keyframes (0: off)")
+    # 10 rather than 20: the 10-lap loop adds 2 keyframes in lap 2 instead of 6 (51, 2, 2, 0, 1, 1, 2,
+    # 0, 1, 1); every benchmark row stays bit-identical (benchmarks/RESULTS.md, lifelong section).
+    revisit_min_age: int = param(10, "revisit: when a keyframe this many keyframes older than the newest shares the most points with the frame, it becomes the reference (local map centre) and max_frames stops forcing keyframes (0: off)")
     # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
     close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...")
     close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points")
