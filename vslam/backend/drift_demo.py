@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from vslam.map.pose_graph import optimize_pose_graph
-from vslam.backend.schur_lm import so3_exp
 from vslam.errors import ConfigError
-from vslam.geometry.lie import inv_T, make_sim3
+from vslam.geometry.lie import inv_T, make_sim3, so3_exp
 from vslam.geometry.umeyama import umeyama
 
 LOG = logging.getLogger(__name__)
