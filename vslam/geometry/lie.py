@@ -132,11 +132,21 @@ def inv_T(T: np.ndarray) -> np.ndarray:
 
 
 def inv_se3(T: np.ndarray) -> np.ndarray:
-    """Inverse of one rigid 4x4 ``[[R, t], [0, 1]]``: ``[[R^T, -R^T t], [0, 1]]``, the fast per-frame
-    form (no Sim(3) scale, no batch); :func:`inv_T` is the general one."""
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    """Inverse of a rigid 4x4 ``[[R, t], [0, 1]]`` (or a ``(..., 4, 4)`` batch): ``[[R^T, -R^T t], [0, 1]]``.
+
+    The fast form for SE(3) (no Sim(3) scale); one 4x4 takes the per-frame path. :func:`inv_T`
+    also inverts Sim(3).
+    """
+    if T.ndim == 2:
+        out = np.eye(4)
+        out[:3, :3] = T[:3, :3].T
+        out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+        return out
+    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = R_t
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R_t, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
     return out
 
 
