@@ -11,7 +11,7 @@ from vslam.backend.config import BackendConfig
 from vslam.cli import main
 from vslam.config import Config, dump_config, flat_key_map, iter_settings, load_config, settings_markdown
 from vslam.errors import ConfigError
-from vslam.features.config import KLTConfig, MatcherConfig, StereoConfig
+from vslam.features.config import KLTConfig, MatcherConfig
 
 SETTINGS_MD = Path(__file__).resolve().parents[2] / "docs" / "settings.md"
 
@@ -29,7 +29,7 @@ def test_settings_md_is_up_to_date():
         "docs/settings.md is stale: regenerate it with `vslam config --markdown > docs/settings.md`")
 
 
-@pytest.mark.parametrize("cls", _classes(Config) + [MatcherConfig, KLTConfig, StereoConfig], ids=lambda c: c.__name__)
+@pytest.mark.parametrize("cls", _classes(Config) + [MatcherConfig, KLTConfig], ids=lambda c: c.__name__)
 def test_every_field_has_a_one_line_doc(cls):
     for f in dataclasses.fields(cls):
         doc = f.metadata.get("doc", "")
