@@ -137,10 +137,13 @@ def flat_key_map(cls: type) -> dict[str, tuple[str, str]]:
     """Old flat keys of ``cls`` -> (section, key) of the nested section that replaced them.
 
     Derived from the ``flat_prefixes`` of each :func:`vslam.param.section` field: a section ``s``
-    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``.
+    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``; its
+    ``flat_keys`` name the old fields that follow no prefix.
     """
     out: dict[str, tuple[str, str]] = {}
     for f in dataclasses.fields(cls):
+        for old, name in f.metadata.get("flat_keys", {}).items():
+            out.setdefault(old, (f.name, name))
         for prefix in f.metadata.get("flat_prefixes", ()):
             for g in dataclasses.fields(f.default_factory):  # type: ignore[arg-type]
                 out.setdefault(prefix + g.name, (f.name, g.name))
