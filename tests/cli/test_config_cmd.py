@@ -90,17 +90,19 @@ def test_old_flat_keys_map_to_nested_ones_with_a_warning(caplog, tmp_path):
     path.write_text("frontend:\n  init_min_matches: 90\n  init:\n    max_frames: 12\n")
     cfg = load_config(Config, path)
     assert cfg.frontend.init.min_matches == 90 and cfg.frontend.init.max_frames == 12
-    # the backend's flat groups (an old key without the common prefix: flat_keys)
+    # the backend's and loop closing's flat groups (an old key without the common prefix: flat_keys)
     backend = flat_key_map(BackendConfig)
     assert backend["fuse"] == ("fusion", "enabled") and backend["fuse_radius_px"] == ("fusion", "radius_px")
     assert backend["fuse_mono"] == ("fusion", "mono") and backend["mono_left_out"] == ("mono", "left_out")
     assert backend["cull_keyframes"] == ("cull", "keyframes") and backend["redundant_ratio"] == ("cull", "redundant_ratio")
+    closing = flat_key_map(type(Config().loop.closing))
+    assert closing["confirm_max_deg"] == ("confirm", "max_deg") and closing["fuse_ratio"] == ("fuse", "ratio")
     caplog.clear()
     with caplog.at_level(logging.WARNING):
         cfg = load_config(Config, None, ["backend.fuse=false", "backend.mono_min_observations=2",
-                                         "backend.cull_age_keyframes=4"])
+                                         "backend.cull_age_keyframes=4", "loop.closing.confirm_min_inliers=20"])
     assert cfg.backend.fusion.enabled is False and cfg.backend.mono.min_observations == 2
-    assert cfg.backend.cull.age_keyframes == 4
+    assert cfg.backend.cull.age_keyframes == 4 and cfg.loop.closing.confirm.min_inliers == 20
     assert "backend.fuse is deprecated; use backend.fusion.enabled" in caplog.text
     with pytest.raises(ConfigError, match="mono.min_observations must be >= 2"):
         load_config(Config, None, ["backend.mono.min_observations=1"])
