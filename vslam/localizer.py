@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vslam.errors import ConfigError
+from vslam.config import LocalizerConfig
 from vslam.features import create_detector
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
@@ -36,76 +36,6 @@ from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
 
 log = logging.getLogger(__name__)
-
-
-
-@dataclass(frozen=True)
-class LocalizerConfig:
-    """Settings of map-based localization (``--set localize.KEY=VALUE``).
-
-    Attributes:
-        min_inliers: inliers after the final (local map) refinement to accept a tracked or
-            relocalized pose (relocalization itself needs ``loop.relocalization.min_inliers``).
-        reloc_min_inliers: inliers a global relocalization needs (replaces
-            ``loop.relocalization.min_inliers``, tuned for SLAM; None keeps that one). The map is
-            fixed and verified by guided matching, so a lower bar than SLAM's (40) recovers sooner.
-        min_first_pass_inliers: inliers of the first (prediction-guided) pass needed to go on to
-            the local-map pass (ORB-SLAM's TrackWithMotionModel accepts 10).
-        search_radius_px: guided-matching radius around the constant-velocity prediction.
-        search_radius_wide_px: retry radius when the first pass finds too few matches.
-        refine_radius_px: radius of the second matching pass at the refined pose.
-        n_near_keyframes: keyframes nearest to the predicted pose whose points are projected.
-        n_covisible: covisible keyframes of the reference keyframe added to the local map.
-        max_view_angle_deg: a nearby keyframe must look within this angle of the predicted view.
-        match_ratio / max_descriptor_distance: guided-matching acceptance (Hamming bits).
-        max_velocity_m / max_velocity_deg: a constant-velocity step larger than this is reset to
-            zero motion (a bad previous pose must not throw the prediction away).
-        max_step_m / max_step_deg: a tracked pose farther than this from the constant-velocity
-            prediction is rejected (the frame is relocalized globally instead): tracking that
-            locked onto wrong matches must not be reported.
-        max_point_view_angle_deg / check_point_distance: a map point is projected only when seen
-            within this angle of its mean viewing direction and (if checked) within its
-            scale-invariance distance range (ORB-SLAM's ``isInFrustum``).
-        use_depth: RGB-D / stereo depth as extra (virtual right camera) residuals in refinement.
-        reloc_refine_ransac: global relocalization refines its 3D-3D RANSAC pose on reprojection
-            before the guided matching (the fix the loop verification got: with depth noise growing
-            with z^2 the closed-form pose is centimetres and degrees off, too far for the 8 px guided
-            search; 7-Scenes map 0-599, frames 600-999: candidates verified with 20-28 inliers, < 30).
-        always_ransac: PnP RANSAC on every frame's first matching pass (default: only when the
-            prediction has no velocity, i.e. right after a relocalization, or after a failed pass).
-    """
-
-    min_inliers: int = 20
-    min_first_pass_inliers: int = 12
-    reloc_min_inliers: int | None = 30
-    search_radius_px: float = 12.0
-    search_radius_wide_px: float = 30.0
-    refine_radius_px: float = 5.0
-    n_near_keyframes: int = 8
-    n_covisible: int = 10
-    max_view_angle_deg: float = 70.0
-    match_ratio: float = 0.9
-    max_descriptor_distance: float = 64.0
-    max_velocity_m: float = 0.3
-    max_velocity_deg: float = 30.0
-    max_step_m: float = 0.1
-    max_step_deg: float = 10.0
-    use_depth: bool = True
-    reloc_refine_ransac: bool = True
-    max_point_view_angle_deg: float = 60.0
-    check_point_distance: bool = True
-    always_ransac: bool = False
-
-    def __post_init__(self) -> None:
-        if self.min_inliers < 6 or self.min_first_pass_inliers < 6:
-            raise ConfigError(f"localize.min_inliers={self.min_inliers} / min_first_pass_inliers="
-                              f"{self.min_first_pass_inliers}: must be >= 6")
-        if min(self.search_radius_px, self.search_radius_wide_px, self.refine_radius_px) <= 0:
-            raise ConfigError("localize search radii must be > 0 pixels")
-        if self.reloc_min_inliers is not None and self.reloc_min_inliers < 6:
-            raise ConfigError(f"localize.reloc_min_inliers={self.reloc_min_inliers}: must be >= 6")
-        if self.n_near_keyframes < 1 or self.n_covisible < 0:
-            raise ConfigError("localize.n_near_keyframes must be >= 1 and n_covisible >= 0")
 
 
 @dataclass

@@ -41,8 +41,12 @@ def test_settings_tree():
     keys = [s.key for s in iter_settings(Config)]
     assert len(keys) == len(set(keys)) >= 177
     for key in ("frontend.keyframes.max_frames", "frontend.tracking.min_inliers", "frontend.dense.refine",
-                "backend.local.chi2_mono", "loop.closing.min_inliers", "features.n_features"):
+                "backend.local.chi2_mono", "loop.closing.min_inliers", "features.n_features",
+                "backend.fusion.radius_px", "backend.cull.age_keyframes", "loop.closing.confirm.max_deg",
+                "localize.min_inliers", "localize.reloc_min_inliers"):
         assert key in keys
+    # `vslam localize --set localize.KEY=...` goes through the root Config
+    assert load_config(Config, None, ["localize.min_inliers=25"]).localize.min_inliers == 25
 
 
 def test_cli_prints_keys_defaults_and_docs(capsys):
