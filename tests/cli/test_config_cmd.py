@@ -57,7 +57,7 @@ def test_cli_prints_keys_defaults_and_docs(capsys):
     assert "backend.ekf.gate_chi2 = .inf" in out
     assert main(["config", "frontend.init"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 7 and all(line.startswith("frontend.init.") for line in lines)
+    assert len(lines) == 13 and all(line.startswith("frontend.init.") for line in lines)
     assert main(["config", "--markdown"]) == 0
     assert capsys.readouterr().out == SETTINGS_MD.read_text()
     assert main(["config", "frontend.nope"]) == 2

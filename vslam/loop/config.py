@@ -150,6 +150,7 @@ class RelocalizationConfig:
     match_ratio: float = param(0.8, "Lowe ratio of the frame-to-candidate descriptor matching")
     max_descriptor_distance: float = param(64.0, "Hamming bound of the frame-to-candidate descriptor matching")
     min_matches: int = param(15, "matches needed to try PnP")
+    candidate_covisible: int = param(10, "strongest covisible keyframes of a candidate whose points join its matching")
     reproj_px: float = param(4.0, "PnP RANSAC inlier threshold, pixels")
     search_radius_px: float = param(8.0, "guided matching radius at the PnP pose, pixels")
     min_inliers: int = param(40, "inliers after refinement needed to accept the pose (ORB-SLAM: 50)")
