@@ -30,7 +30,7 @@ from vslam.config import LocalizerConfig
 from vslam.features import create_detector
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
-from vslam.geometry.lie import inv_se3 as inv_T
+from vslam.geometry.lie import inv_se3
 from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
@@ -205,7 +205,7 @@ class Localizer:
         T_last = self.T_world_last
         if self.T_world_prev is None:
             return T_last.copy()
-        V = inv_T(self.T_world_prev) @ T_last
+        V = inv_se3(self.T_world_prev) @ T_last
         ang = np.degrees(np.arccos(np.clip((np.trace(V[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
         if np.linalg.norm(V[:3, 3]) > self.cfg.max_velocity_m or ang > self.cfg.max_velocity_deg:
             return T_last.copy()
@@ -224,12 +224,12 @@ class Localizer:
             # descriptors alone and let PnP RANSAC find the pose
             T_cw, kp, pid = self._match_unguided(obs, pts)
         else:
-            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_px, tree,
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_se3(T_world_pred), self.cfg.search_radius_px, tree,
                                                    ransac=self.cfg.always_ransac)
         if len(kp) < self.cfg.min_first_pass_inliers:
             # a poor prediction: wide window, and PnP RANSAC before refinement (the Huber refinement
             # from a far-off guess can settle in a wrong minimum among the many wrong matches)
-            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_wide_px,
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_se3(T_world_pred), self.cfg.search_radius_wide_px,
                                                    tree, ransac=True)
         if len(kp) < self.cfg.min_first_pass_inliers and self.T_world_prev is not None:
             # still too few: the local map by descriptors alone (ORB-SLAM's TrackReferenceKeyFrame)
@@ -245,14 +245,14 @@ class Localizer:
 
     def _plausible(self, T_world_pred: np.ndarray, T_world_cam: np.ndarray) -> bool:
         """Whether ``T_world_cam`` lies within ``max_step_m`` / ``max_step_deg`` of the prediction."""
-        D = inv_T(T_world_pred) @ T_world_cam
+        D = inv_se3(T_world_pred) @ T_world_cam
         ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
         return bool(np.linalg.norm(D[:3, 3]) <= self.cfg.max_step_m and ang <= self.cfg.max_step_deg)
 
     def _finish(self, obs: _Obs, T_cw: np.ndarray, tree: cKDTree, state: str,
                 pts: np.ndarray | None = None) -> LocalizeResult | None:
         """Second pass (TrackLocalMap): the local map around the refined pose, tight radius."""
-        T_world = inv_T(T_cw)
+        T_world = inv_se3(T_cw)
         self.ref_kf = self._nearest_keyframe(T_world)
         pts2 = self._local_points(self._local_keyframes(T_world))
         if pts is not None:
@@ -260,7 +260,7 @@ class Localizer:
         T_cw2, kp, pid = self._match_and_refine(obs, pts2, T_cw, self.cfg.refine_radius_px, tree)
         if len(kp) < self.cfg.min_inliers:
             return None
-        return LocalizeResult(inv_T(T_cw2), state, int(len(kp)))
+        return LocalizeResult(inv_se3(T_cw2), state, int(len(kp)))
 
     def _nearest_keyframe(self, T_world_cam: np.ndarray) -> int | None:
         if len(self._kf_ids) == 0:
@@ -331,7 +331,7 @@ class Localizer:
             return LocalizeResult(None, "lost", 0)
         self.ref_kf = int(reloc.keyframe_id)
         tree = cKDTree(obs.uv_undist)
-        res = self._finish(obs, inv_T(reloc.T_world_cam), tree, "localized")
+        res = self._finish(obs, inv_se3(reloc.T_world_cam), tree, "localized")
         if res is None:
             # the local map does not confirm the relocalized pose: not reported (it used to be,
             # with >= 30 relocalization inliers; on 7-Scenes those poses were 10-30 cm off)

@@ -24,7 +24,7 @@ import logging
 
 import numpy as np
 
-from vslam.geometry.lie import inv_T
+from vslam.geometry.lie import inv_se3
 
 log = logging.getLogger(__name__)
 
@@ -106,10 +106,10 @@ def align_depth(depth_prev: np.ndarray, depth_cur: np.ndarray, K: np.ndarray, T_
 
     # OpenCV's Rt maps source (previous) points into the destination (current) frame: T_cur_prev
     ok, T_cur_prev = odo.compute2(frame(depth_prev, gray_prev if photometric else None),
-                                  frame(depth_cur, gray_cur if photometric else None), None, inv_T(T_prev_cur_guess))
+                                  frame(depth_cur, gray_cur if photometric else None), None, inv_se3(T_prev_cur_guess))
     if not ok or T_cur_prev is None or not np.all(np.isfinite(T_cur_prev)):
         return None, 0.0
-    T_prev_cur = inv_T(np.asarray(T_cur_prev, float))
+    T_prev_cur = inv_se3(np.asarray(T_cur_prev, float))
     agree = depth_agreement(np.nan_to_num(full_prev), np.nan_to_num(full_cur), K_full, T_prev_cur, agreement_step,
                             agreement_tolerance_m)
     if agree < min_agreement:

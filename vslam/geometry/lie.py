@@ -116,9 +116,9 @@ def sim3_decompose(S: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def inv_T(T: np.ndarray) -> np.ndarray:
-    """Inverse of an SE(3) or Sim(3) 4x4 (``(N, 4, 4)`` batches too): ``[[A^-1, -A^-1 t], [0, 1]]``.
+    """Inverse of a Sim(3) 4x4 (``(N, 4, 4)`` batches too): ``[[A^-1, -A^-1 t], [0, 1]]``.
 
-    For SE(3) ``A^-1 = R^T``; for Sim(3) ``(sR)^-1 = R^T / s``, computed as ``A^T / s^2``.
+    ``(sR)^-1 = R^T / s``, computed as ``A^T / s^2``; rigid transforms take :func:`inv_se3` (no scale).
     """
     T = np.asarray(T, dtype=float)
     A = T[..., :3, :3]
@@ -137,6 +137,7 @@ def inv_se3(T: np.ndarray) -> np.ndarray:
     The fast form for SE(3) (no Sim(3) scale); one 4x4 takes the per-frame path. :func:`inv_T`
     also inverts Sim(3).
     """
+    T = np.asarray(T, dtype=float)
     if T.ndim == 2:
         out = np.eye(4)
         out[:3, :3] = T[:3, :3].T
@@ -148,10 +149,6 @@ def inv_se3(T: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = -np.einsum("...ij,...j->...i", R_t, T[..., :3, 3])
     out[..., 3, 3] = 1.0
     return out
-
-
-se3_inverse = inv_T
-sim3_inverse = inv_T
 
 
 def compose(*Ts: np.ndarray) -> np.ndarray:
