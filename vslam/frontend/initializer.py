@@ -16,7 +16,7 @@ import numpy as np
 from vslam.frontend.config import FrontendConfig
 from vslam.frontend.observation import Observation
 from vslam.geometry.epipolar import essential_pose
-from vslam.geometry.lie import make_T
+from vslam.geometry.lie import inv_se3, make_T
 from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
 
 log = logging.getLogger(__name__)
@@ -73,7 +73,7 @@ class MonoInitializer:
         X = triangulate_dlt(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
         e1, z1 = reprojection_error_depth(np.eye(4), self.K, X, x1[mask])
         e2, z2 = reprojection_error_depth(T_cur_ref, self.K, X, x2[mask])
-        T_ref_cur = np.linalg.inv(T_cur_ref)
+        T_ref_cur = inv_se3(T_cur_ref)
         par = ray_parallax_deg(np.eye(4), T_ref_cur, X)
         thr = cfg.init.reproj_threshold_factor * cfg.tracking.essential_px
         good = (z1 > 0) & (z2 > 0) & (e1 < thr) & (e2 < thr) & (par > cfg.init.min_point_parallax_deg) & np.all(np.isfinite(X), axis=1)
