@@ -24,18 +24,16 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from vslam.geometry.lie import inv_se3
+from vslam.geometry.lie import inv_se3, slerp_rotation
 from vslam.map.keyframe import KeyFrame
 
 
 def blend_corrections(D_a: np.ndarray, D_b: np.ndarray, s: np.ndarray) -> np.ndarray:
     """``D_a [Exp(s phi) | s t]`` with ``(phi, t)`` of ``D_a^-1 D_b``, vectorized over ``(N, 4, 4)``."""
     rel = inv_se3(D_a) @ D_b
-    phi = Rotation.from_matrix(rel[:, :3, :3]).as_rotvec()
     E = np.tile(np.eye(4), (len(s), 1, 1))
-    E[:, :3, :3] = Rotation.from_rotvec(s[:, None] * phi).as_matrix()
+    E[:, :3, :3] = slerp_rotation(np.eye(3), rel[:, :3, :3], s)
     E[:, :3, 3] = s[:, None] * rel[:, :3, 3]
     return D_a @ E
 

@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from vslam.datasets.images import require_file
 from vslam.errors import DatasetError
+from vslam.geometry.lie import slerp_rotation
 from vslam.textfile import open_text
 from vslam.trajectory import Trajectory
 
@@ -98,7 +97,8 @@ def associate(
 def interpolate_poses(
     gt: Trajectory, t_query: np.ndarray, max_gap: float = 0.1, exact_tol: float = 1e-5
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth poses at ``t_query`` (SLERP rotation, linear translation between neighbours).
+    """Ground-truth poses at ``t_query`` (SLERP rotation, :func:`vslam.geometry.lie.slerp_rotation`,
+    linear translation between neighbours).
 
     A query within ``exact_tol`` seconds of a GT sample takes that sample; otherwise it needs GT
     samples on both sides no more than ``max_gap`` seconds apart. Returns
@@ -132,12 +132,8 @@ def interpolate_poses(
         i0, i1 = i0[ok], i1[ok]
         if len(q_idx):
             alpha = (t_query[q_idx] - tg[i0]) / (tg[i1] - tg[i0])
-            R0 = Rotation.from_matrix(gt.T_world_cam[i0, :3, :3])
-            R1 = Rotation.from_matrix(gt.T_world_cam[i1, :3, :3])
-            delta = (R0.inv() * R1).as_rotvec()
-            R = R0 * Rotation.from_rotvec(alpha[:, None] * delta)
             Ti = np.tile(np.eye(4), (len(q_idx), 1, 1))
-            Ti[:, :3, :3] = R.as_matrix()
+            Ti[:, :3, :3] = slerp_rotation(gt.T_world_cam[i0, :3, :3], gt.T_world_cam[i1, :3, :3], alpha)
             p0 = gt.T_world_cam[i0, :3, 3]
             p1 = gt.T_world_cam[i1, :3, 3]
             Ti[:, :3, 3] = p0 + alpha[:, None] * (p1 - p0)

@@ -270,12 +270,14 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 def slerp_rotation(R0: np.ndarray, R1: np.ndarray, alpha: float | np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation ``R0 exp(alpha log(R0^T R1))`` (Shoemake 1985).
+    """Spherical linear interpolation ``R0 exp(alpha log(R0^T R1))`` (Shoemake 1985): the one
+    rotation interpolation (trajectories, ground truth at image times, frame corrections).
 
-    ``alpha`` may be a scalar (-> ``(3, 3)``) or an array ``(M,)`` (-> ``(M, 3, 3)``).
+    One pair ``(3, 3)`` with ``alpha`` a scalar (-> ``(3, 3)``) or ``(M,)`` (-> ``(M, 3, 3)``), or
+    ``M`` pairs ``(M, 3, 3)`` with ``alpha (M,)``.
     """
     R0 = np.asarray(R0, dtype=float)
-    w = so3_log(R0.T @ np.asarray(R1, dtype=float))
+    w = so3_log(np.swapaxes(R0, -1, -2) @ np.asarray(R1, dtype=float))
     a = np.asarray(alpha, dtype=float)
     return R0 @ so3_exp(a[..., None] * w)
 
@@ -313,10 +315,8 @@ def interpolate_trajectory(
         raise GeometryError(f"query times outside the trajectory span [{ts[0]}, {ts[-1]}]")
     i = np.clip(np.searchsorted(ts, q, side="right") - 1, 0, len(ts) - 2)
     a = (q - ts[i]) / (ts[i + 1] - ts[i])
-    R0, R1 = Ts[i, :3, :3], Ts[i + 1, :3, :3]
-    w = so3_log(np.swapaxes(R0, 1, 2) @ R1)
     out = np.zeros((len(q), 4, 4))
-    out[:, :3, :3] = R0 @ so3_exp(a[:, None] * w)
+    out[:, :3, :3] = slerp_rotation(Ts[i, :3, :3], Ts[i + 1, :3, :3], a)
     out[:, :3, 3] = (1 - a)[:, None] * Ts[i, :3, 3] + a[:, None] * Ts[i + 1, :3, 3]
     out[:, 3, 3] = 1.0
     return out
