@@ -1,10 +1,11 @@
-"""Timestamps: TUM-style ``timestamp field ...`` lists (checked sorted), the TUM ``associate.py``
-matching of two timestamp lists and ground truth interpolated at arbitrary times."""
+"""Timestamps: TUM-style ``timestamp field ...`` lists (checked sorted) and ground truth
+interpolated at arbitrary times. Two lists are matched with :func:`vslam.trajectory.associate_timestamps`."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+
 from vslam.datasets.images import require_file
 from vslam.errors import DatasetError
 from vslam.geometry.lie import slerp_rotation
@@ -55,43 +56,6 @@ def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> 
     if not ts:
         raise DatasetError(f"{path}: the {what} has no entries")
     return np.array(ts, dtype=float), rows
-
-
-def associate(
-    t_first: np.ndarray, t_second: np.ndarray, offset: float = 0.0, max_difference: float = 0.02
-) -> np.ndarray:
-    """Match two timestamp lists like TUM's ``associate.py``.
-
-    Every candidate pair with ``|t1 - (t2 + offset)| < max_difference`` is sorted by that
-    difference and accepted greedily, each timestamp used at most once (Sturm et al., IROS 2012,
-    ``associate.py``). Returns ``(M, 2)`` index pairs sorted by the first index.
-    """
-    t1 = np.asarray(t_first, dtype=float)
-    t2 = np.asarray(t_second, dtype=float) + offset
-    order2 = np.argsort(t2, kind="stable")
-    t2s = t2[order2]
-    lo = np.searchsorted(t2s, t1 - max_difference, side="left")
-    hi = np.searchsorted(t2s, t1 + max_difference, side="right")
-    counts = hi - lo
-    if counts.sum() == 0:
-        return np.zeros((0, 2), dtype=int)
-    i1 = np.repeat(np.arange(len(t1)), counts)
-    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    j_sorted = starts + np.arange(counts.sum())
-    i2 = order2[j_sorted]
-    diff = np.abs(t1[i1] - t2[i2])
-    keep = diff < max_difference
-    i1, i2, diff = i1[keep], i2[keep], diff[keep]
-    used1 = np.zeros(len(t1), dtype=bool)
-    used2 = np.zeros(len(t2), dtype=bool)
-    pairs = []
-    for k in np.argsort(diff, kind="stable"):
-        a, b = i1[k], i2[k]
-        if not used1[a] and not used2[b]:
-            used1[a] = used2[b] = True
-            pairs.append((a, b))
-    out = np.array(sorted(pairs), dtype=int).reshape(-1, 2)
-    return out
 
 
 def interpolate_poses(
