@@ -7,6 +7,7 @@ import numpy as np
 
 from vslam.backend.config import BackendConfig
 from vslam.backend.local_problem import segment_keyframes
+from vslam.geometry.lie import inv_se3
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.mappoint import unique_ids
@@ -89,7 +90,7 @@ class Culling:
             return
         parent = self.map.keyframes[parents[0]]
         kf.extra["parent"] = parent.id
-        kf.extra["T_parent_kf"] = np.linalg.inv(parent.T_world_cam) @ kf.T_world_cam
+        kf.extra["T_parent_kf"] = inv_se3(parent.T_world_cam) @ kf.T_world_cam
         kf.bad = True
         for o in list(links):
             self.map.covisibility.get(o, {}).pop(kf.id, None)

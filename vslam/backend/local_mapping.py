@@ -51,6 +51,7 @@ from vslam.backend.local_problem import LocalProblemBuilder, ProblemContext, max
 from vslam.backend.map_writeback import PointWriteback
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
 from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
@@ -206,7 +207,7 @@ class LocalMapper:
                 if kid == self._newest_kf():
                     moved = (kid, kf.T_world_cam.copy(), T.copy())
                 if ctx.left_out is not None:
-                    corrections[kid] = T @ np.linalg.inv(kf.T_world_cam)
+                    corrections[kid] = T @ inv_se3(kf.T_world_cam)
                 kf.T_world_cam = T.copy()
         if ctx.left_out is not None and len(ctx.left_out[0]) and corrections:
             if self.config.mono.left_out == "retriangulate":
@@ -320,7 +321,7 @@ class LocalMapper:
             if not older:
                 continue
             ref = max(older)
-            D = self.map.keyframes[ref].T_world_cam @ np.linalg.inv(before[ref])
+            D = self.map.keyframes[ref].T_world_cam @ inv_se3(before[ref])
             T_old = kf.T_world_cam.copy()
             kf.T_world_cam = D @ T_old
             ids = np.flatnonzero(store.alive[:n] & (store.first_kf[:n] == kid))
