@@ -45,6 +45,13 @@ class TrackingConfig:
     enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search")
     second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers")
     prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers")
+    refine_rounds: int = param(3, "rounds of the robust pose-only refinement (chi-square outliers dropped between rounds)")
+    refine_rounds_prediction: int = param(2, "the same when only refining the pose from the motion prediction")
+    pnp_refine_rounds: int = param(2, "refinement rounds inside PnP RANSAC")
+    # with depth, a first-pass pose only places the second association pass (gate 4.5 px), which a refinement
+    # with the depth residuals follows: one LM round on its inliers is enough there (monocular KITTI 07
+    # odometry drifts more with it: 1.16 vs < 1 m)
+    pnp_refine_rounds_first_pass: int = param(1, "stereo/RGB-D: refinement rounds inside the first pass's PnP RANSAC")
     align_iterations: int = param(100, "3D-3D RANSAC iterations")
     align_refine_iterations: int = param(30, "3D-3D RANSAC iterations when only refining a pose")
     align_stereo_disparity_px: float = param(2.0, "stereo 3D-3D threshold is at least the depth error of this disparity error, pixels")
