@@ -1,5 +1,5 @@
-"""Time per call of the feature layer: ORB detection, descriptor matching, guided matching, KLT,
-stereo matching; with OpenCV's own ORB / BFMatcher as references on the same inputs.
+"""Time per call of the feature layer: ORB detection, descriptor matching, guided matching, KLT;
+with OpenCV's own ORB / BFMatcher as references on the same inputs.
 
 Run ``python benchmarks/features_bench.py`` (prints a table) or call :func:`run_features_bench`
 (returns ``{name: {"ms_median": .., "ms_min": .., "cpu_ms_median": .., "n": ..}}``).
@@ -23,12 +23,10 @@ from vslam.features import (
     FeatureConfig,
     KLTConfig,
     MatcherConfig,
-    StereoConfig,
     create_detector,
     detect_new_points,
     match_by_projection,
     match_descriptors,
-    match_stereo,
     track_klt,
 )
 
@@ -121,13 +119,6 @@ def run_features_bench(repeats: int = 10, data: Path | None = None, cv_threads: 
     add(f"klt_fb_{len(pts)}pts_1226x370", lambda: track_klt(img["kitti_l0"], img["kitti_l1"], pts, kcfg), len(pts))
     add("detect_new_points_gftt_to_1500", lambda: detect_new_points(img["kitti_l1"], pts[:500], 1500), 1000)
 
-    scfg = StereoConfig()
-    fx_b = (707.0912, 0.53716)
-    n_st = len(match_stereo(f0, fr, scfg, img["kitti_l0"], img["kitti_r0"], *fx_b)[0])
-    add(f"stereo_match_{len(f0)}x{len(fr)}_lk_refine",
-        lambda: match_stereo(f0, fr, scfg, img["kitti_l0"], img["kitti_r0"], *fx_b), n_st)
-    no_ref = StereoConfig(refine=False)
-    add(f"stereo_match_{len(f0)}x{len(fr)}_no_refine", lambda: match_stereo(f0, fr, no_ref, *(None, None), *fx_b), n_st)
     return out
 
 

@@ -22,7 +22,7 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 import yaml
 
 from vslam.errors import ConfigError
-from vslam.param import doc_of, section
+from vslam.param import doc_of, param, section
 
 log = logging.getLogger(__name__)
 from vslam.textfile import open_text
@@ -137,10 +137,13 @@ def flat_key_map(cls: type) -> dict[str, tuple[str, str]]:
     """Old flat keys of ``cls`` -> (section, key) of the nested section that replaced them.
 
     Derived from the ``flat_prefixes`` of each :func:`vslam.param.section` field: a section ``s``
-    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``.
+    with prefix ``p`` took over the old field ``p + name`` for each of its fields ``name``; its
+    ``flat_keys`` name the old fields that follow no prefix.
     """
     out: dict[str, tuple[str, str]] = {}
     for f in dataclasses.fields(cls):
+        for old, name in f.metadata.get("flat_keys", {}).items():
+            out.setdefault(old, (f.name, name))
         for prefix in f.metadata.get("flat_prefixes", ()):
             for g in dataclasses.fields(f.default_factory):  # type: ignore[arg-type]
                 out.setdefault(prefix + g.name, (f.name, g.name))
@@ -318,6 +321,48 @@ from vslam.loop.config import LoopConfig  # noqa: E402
 
 
 @dataclass(frozen=True)
+class LocalizerConfig:
+    """Map-based localization (``vslam localize``, :class:`vslam.localizer.Localizer`): tracking against a
+    fixed map, relocalizing globally when lost."""
+
+    min_inliers: int = param(20, "inliers after the final (local map) refinement to accept a tracked or relocalized pose")
+    min_first_pass_inliers: int = param(12, "inliers of the first (prediction-guided) pass needed to go on to the local-map pass (ORB-SLAM's TrackWithMotionModel: 10)")
+    # The map is fixed and verified by guided matching, so a lower bar than SLAM's (40) recovers sooner.
+    reloc_min_inliers: int | None = param(30, "inliers a global relocalization needs (null: loop.relocalization.min_inliers, tuned for SLAM)")
+    search_radius_px: float = param(12.0, "guided-matching radius around the constant-velocity prediction, pixels")
+    search_radius_wide_px: float = param(30.0, "retry radius when the first pass finds too few matches, pixels")
+    refine_radius_px: float = param(5.0, "radius of the second matching pass at the refined pose, pixels")
+    n_near_keyframes: int = param(8, "keyframes nearest to the predicted pose whose points are projected")
+    n_covisible: int = param(10, "covisible keyframes of the reference keyframe added to the local map")
+    max_view_angle_deg: float = param(70.0, "a nearby keyframe must look within this angle of the predicted view, degrees")
+    match_ratio: float = param(0.9, "ratio test of the guided matching")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the guided matching")
+    max_velocity_m: float = param(0.3, "a constant-velocity step longer than this is reset to zero motion, metres")
+    max_velocity_deg: float = param(30.0, "the same for its rotation, degrees")
+    max_step_m: float = param(0.1, "a tracked pose farther than this from the prediction is rejected (relocalized instead), metres")
+    max_step_deg: float = param(10.0, "the same for its rotation, degrees")
+    use_depth: bool = param(True, "RGB-D / stereo depth as extra (virtual right camera) residuals in refinement")
+    # The fix the loop verification got: with depth noise growing with z^2 the closed-form pose is centimetres
+    # and degrees off, too far for the 8 px guided search (7-Scenes map 0-599, frames 600-999: candidates
+    # verified with 20-28 inliers, < 30).
+    reloc_refine_ransac: bool = param(True, "global relocalization refines its 3D-3D RANSAC pose on reprojection before guided matching")
+    max_point_view_angle_deg: float = param(60.0, "a map point is projected only when seen within this angle of its mean viewing direction, degrees")
+    check_point_distance: bool = param(True, "a map point is projected only within its scale-invariance distance range (ORB-SLAM's isInFrustum)")
+    always_ransac: bool = param(False, "PnP RANSAC on every frame's first matching pass (default: only without a velocity, or after a failed pass)")
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 6 or self.min_first_pass_inliers < 6:
+            raise ConfigError(f"localize.min_inliers={self.min_inliers} / min_first_pass_inliers="
+                              f"{self.min_first_pass_inliers}: must be >= 6")
+        if min(self.search_radius_px, self.search_radius_wide_px, self.refine_radius_px) <= 0:
+            raise ConfigError("localize search radii must be > 0 pixels")
+        if self.reloc_min_inliers is not None and self.reloc_min_inliers < 6:
+            raise ConfigError(f"localize.reloc_min_inliers={self.reloc_min_inliers}: must be >= 6")
+        if self.n_near_keyframes < 1 or self.n_covisible < 0:
+            raise ConfigError("localize.n_near_keyframes must be >= 1 and n_covisible >= 0")
+
+
+@dataclass(frozen=True)
 class Config:
     """Everything a run is configured by, one section per pipeline stage."""
 
@@ -325,3 +370,4 @@ class Config:
     frontend: FrontendConfig = section(FrontendConfig, "tracking: association, motion, keyframes, local map")
     backend: BackendConfig = section(BackendConfig, "local mapping, bundle adjustment, pose graph, EKF")
     loop: LoopConfig = section(LoopConfig, "place recognition, loop closing, relocalization")
+    localize: LocalizerConfig = section(LocalizerConfig, "localization in a saved map (vslam localize)")

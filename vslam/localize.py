@@ -28,17 +28,6 @@ from vslam.errors import MapFormatError
 
 log = logging.getLogger(__name__)
 
-LOCALIZE_PREFIX = "localize."
-
-
-def split_overrides(overrides: list[str] | tuple[str, ...]) -> tuple[list[str], list[str]]:
-    """``--set`` overrides for the root Config and (prefix ``localize.``) for LocalizerConfig."""
-    root, loc = [], []
-    for text in overrides:
-        (loc if text.startswith(LOCALIZE_PREFIX) else root).append(
-            text[len(LOCALIZE_PREFIX):] if text.startswith(LOCALIZE_PREFIX) else text)
-    return root, loc
-
 
 def localize_path(
     map_dir: str | Path,
@@ -57,24 +46,22 @@ def localize_path(
     """Localize the frames ``start_frame ..`` of the sequence at ``path`` in the map saved in ``map_dir``.
 
     ``config`` defaults to the mapping run's ``MAP_DIR/config.yaml`` when there is one (so features are
-    detected as they were for the map); ``overrides`` starting with ``localize.`` set
-    :class:`vslam.localizer.LocalizerConfig` fields, the others the root Config. ``prefetch`` is
+    detected as they were for the map); ``overrides`` set the root Config, its ``localize.`` section
+    (:class:`vslam.config.LocalizerConfig`) included. ``prefetch`` is
     where frames are decoded ahead (:func:`vslam.runner.run_sequence`; the poses do not depend on it).
     Returns a :class:`vslam.runner.RunResult` (``stats`` and the trajectory of the localized frames).
     Raises :class:`MapFormatError` for a missing or corrupt map, :class:`DatasetError` for a bad sequence.
     """
     from vslam.api import open_sequence, resolve_config
-    from vslam.config import load_config
     from vslam.datasets.prefetch import FrameRange
-    from vslam.localizer import Localizer, LocalizerConfig
+    from vslam.localizer import Localizer
     from vslam.runner import run_sequence
 
-    root_over, loc_over = split_overrides(overrides)
     map_dir = Path(map_dir)
     if config is None and (map_dir / "config.yaml").is_file():
         config = map_dir / "config.yaml"  # detect features as the mapping run did
-    cfg = resolve_config(config, root_over)
-    loc_cfg = load_config(LocalizerConfig, None, loc_over)
+    cfg = resolve_config(config, list(overrides))
+    loc_cfg = cfg.localize
     slam_map, database, map_camera, metadata = open_map(map_dir)
     ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames,
                                      preferred_sensor=metadata.get("sensor"), camera=camera)

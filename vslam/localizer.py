@@ -26,88 +26,18 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vslam.errors import ConfigError
+from vslam.config import LocalizerConfig
 from vslam.features import create_detector
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.frontend.observation import sample_depth
 from vslam.frontend.prepare import FramePreparer
-from vslam.geometry.lie import inv_se3 as inv_T
+from vslam.geometry.lie import inv_se3
 from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
 from vslam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
-
-
-
-@dataclass(frozen=True)
-class LocalizerConfig:
-    """Settings of map-based localization (``--set localize.KEY=VALUE``).
-
-    Attributes:
-        min_inliers: inliers after the final (local map) refinement to accept a tracked or
-            relocalized pose (relocalization itself needs ``loop.relocalization.min_inliers``).
-        reloc_min_inliers: inliers a global relocalization needs (replaces
-            ``loop.relocalization.min_inliers``, tuned for SLAM; None keeps that one). The map is
-            fixed and verified by guided matching, so a lower bar than SLAM's (40) recovers sooner.
-        min_first_pass_inliers: inliers of the first (prediction-guided) pass needed to go on to
-            the local-map pass (ORB-SLAM's TrackWithMotionModel accepts 10).
-        search_radius_px: guided-matching radius around the constant-velocity prediction.
-        search_radius_wide_px: retry radius when the first pass finds too few matches.
-        refine_radius_px: radius of the second matching pass at the refined pose.
-        n_near_keyframes: keyframes nearest to the predicted pose whose points are projected.
-        n_covisible: covisible keyframes of the reference keyframe added to the local map.
-        max_view_angle_deg: a nearby keyframe must look within this angle of the predicted view.
-        match_ratio / max_descriptor_distance: guided-matching acceptance (Hamming bits).
-        max_velocity_m / max_velocity_deg: a constant-velocity step larger than this is reset to
-            zero motion (a bad previous pose must not throw the prediction away).
-        max_step_m / max_step_deg: a tracked pose farther than this from the constant-velocity
-            prediction is rejected (the frame is relocalized globally instead): tracking that
-            locked onto wrong matches must not be reported.
-        max_point_view_angle_deg / check_point_distance: a map point is projected only when seen
-            within this angle of its mean viewing direction and (if checked) within its
-            scale-invariance distance range (ORB-SLAM's ``isInFrustum``).
-        use_depth: RGB-D / stereo depth as extra (virtual right camera) residuals in refinement.
-        reloc_refine_ransac: global relocalization refines its 3D-3D RANSAC pose on reprojection
-            before the guided matching (the fix the loop verification got: with depth noise growing
-            with z^2 the closed-form pose is centimetres and degrees off, too far for the 8 px guided
-            search; 7-Scenes map 0-599, frames 600-999: candidates verified with 20-28 inliers, < 30).
-        always_ransac: PnP RANSAC on every frame's first matching pass (default: only when the
-            prediction has no velocity, i.e. right after a relocalization, or after a failed pass).
-    """
-
-    min_inliers: int = 20
-    min_first_pass_inliers: int = 12
-    reloc_min_inliers: int | None = 30
-    search_radius_px: float = 12.0
-    search_radius_wide_px: float = 30.0
-    refine_radius_px: float = 5.0
-    n_near_keyframes: int = 8
-    n_covisible: int = 10
-    max_view_angle_deg: float = 70.0
-    match_ratio: float = 0.9
-    max_descriptor_distance: float = 64.0
-    max_velocity_m: float = 0.3
-    max_velocity_deg: float = 30.0
-    max_step_m: float = 0.1
-    max_step_deg: float = 10.0
-    use_depth: bool = True
-    reloc_refine_ransac: bool = True
-    max_point_view_angle_deg: float = 60.0
-    check_point_distance: bool = True
-    always_ransac: bool = False
-
-    def __post_init__(self) -> None:
-        if self.min_inliers < 6 or self.min_first_pass_inliers < 6:
-            raise ConfigError(f"localize.min_inliers={self.min_inliers} / min_first_pass_inliers="
-                              f"{self.min_first_pass_inliers}: must be >= 6")
-        if min(self.search_radius_px, self.search_radius_wide_px, self.refine_radius_px) <= 0:
-            raise ConfigError("localize search radii must be > 0 pixels")
-        if self.reloc_min_inliers is not None and self.reloc_min_inliers < 6:
-            raise ConfigError(f"localize.reloc_min_inliers={self.reloc_min_inliers}: must be >= 6")
-        if self.n_near_keyframes < 1 or self.n_covisible < 0:
-            raise ConfigError("localize.n_near_keyframes must be >= 1 and n_covisible >= 0")
 
 
 @dataclass
@@ -321,7 +251,7 @@ class Localizer:
         T_last = self.T_world_last
         if self.T_world_prev is None:
             return T_last.copy()
-        V = inv_T(self.T_world_prev) @ T_last
+        V = inv_se3(self.T_world_prev) @ T_last
         ang = np.degrees(np.arccos(np.clip((np.trace(V[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
         if np.linalg.norm(V[:3, 3]) > self.cfg.max_velocity_m or ang > self.cfg.max_velocity_deg:
             return T_last.copy()
@@ -340,12 +270,12 @@ class Localizer:
             # descriptors alone and let PnP RANSAC find the pose
             T_cw, kp, pid = self._match_unguided(obs, pts)
         else:
-            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_px, tree,
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_se3(T_world_pred), self.cfg.search_radius_px, tree,
                                                    ransac=self.cfg.always_ransac)
         if len(kp) < self.cfg.min_first_pass_inliers:
             # a poor prediction: wide window, and PnP RANSAC before refinement (the Huber refinement
             # from a far-off guess can settle in a wrong minimum among the many wrong matches)
-            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_T(T_world_pred), self.cfg.search_radius_wide_px,
+            T_cw, kp, pid = self._match_and_refine(obs, pts, inv_se3(T_world_pred), self.cfg.search_radius_wide_px,
                                                    tree, ransac=True)
         if len(kp) < self.cfg.min_first_pass_inliers and self.T_world_prev is not None:
             # still too few: the local map by descriptors alone (ORB-SLAM's TrackReferenceKeyFrame)
@@ -361,14 +291,14 @@ class Localizer:
 
     def _plausible(self, T_world_pred: np.ndarray, T_world_cam: np.ndarray) -> bool:
         """Whether ``T_world_cam`` lies within ``max_step_m`` / ``max_step_deg`` of the prediction."""
-        D = inv_T(T_world_pred) @ T_world_cam
+        D = inv_se3(T_world_pred) @ T_world_cam
         ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
         return bool(np.linalg.norm(D[:3, 3]) <= self.cfg.max_step_m and ang <= self.cfg.max_step_deg)
 
     def _finish(self, obs: _Obs, T_cw: np.ndarray, tree: cKDTree, state: str,
                 pts: np.ndarray | None = None) -> LocalizeResult | None:
         """Second pass (TrackLocalMap): the local map around the refined pose, tight radius."""
-        T_world = inv_T(T_cw)
+        T_world = inv_se3(T_cw)
         self.ref_kf = self._nearest_keyframe(T_world)
         pts2 = self._local_points(self._local_keyframes(T_world))
         if pts is not None:
@@ -376,7 +306,7 @@ class Localizer:
         T_cw2, kp, pid = self._match_and_refine(obs, pts2, T_cw, self.cfg.refine_radius_px, tree)
         if len(kp) < self.cfg.min_inliers:
             return None
-        return LocalizeResult(inv_T(T_cw2), state, int(len(kp)))
+        return LocalizeResult(inv_se3(T_cw2), state, int(len(kp)))
 
     def _nearest_keyframe(self, T_world_cam: np.ndarray) -> int | None:
         if len(self._kf_ids) == 0:
@@ -447,7 +377,7 @@ class Localizer:
             return LocalizeResult(None, "lost", 0)
         self.ref_kf = int(reloc.keyframe_id)
         tree = cKDTree(obs.uv_undist)
-        res = self._finish(obs, inv_T(reloc.T_world_cam), tree, "localized")
+        res = self._finish(obs, inv_se3(reloc.T_world_cam), tree, "localized")
         if res is None:
             # the local map does not confirm the relocalized pose: not reported (it used to be,
             # with >= 30 relocalization inliers; on 7-Scenes those poses were 10-30 cm off)

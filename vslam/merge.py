@@ -282,8 +282,8 @@ def _fuse_seam(slam_map, group: list[SeamMatch], kf_offset: int, camera, sensor:
                                             check_distance=sensor != "mono")
         if len(vis) == 0:
             continue
-        mi, kp, _ = guided_match(proj, store.descriptor[vis], kf.uv_undist, kf.descriptors, cc.fuse_radius_px, True,
-                                 cc.fuse_max_descriptor_distance, cc.fuse_ratio)
+        mi, kp, _ = guided_match(proj, store.descriptor[vis], kf.uv_undist, kf.descriptors, cc.fuse.radius_px, True,
+                                 cc.fuse.max_descriptor_distance, cc.fuse.ratio)
         fused += assign_observations(slam_map, kf, kp, vis[mi], remap)
     apply_remap(slam_map.keyframes.values(), remap)
     return fused

@@ -15,13 +15,15 @@ def param(default: Any, doc: str) -> Any:
     return dataclasses.field(default=default, metadata={"doc": doc})
 
 
-def section(cls: type, doc: str, flat_prefixes: tuple[str, ...] = ()) -> Any:
+def section(cls: type, doc: str, flat_prefixes: tuple[str, ...] = (), flat_keys: dict[str, str] | None = None) -> Any:
     """A nested group of settings (a frozen dataclass ``cls``, defaults from ``cls()``).
 
     ``flat_prefixes``: the group's settings were once flat fields of the parent named
-    ``prefix + name``; :func:`vslam.config.from_dict` maps those old keys here (with a warning).
+    ``prefix + name``; ``flat_keys``: old flat names that follow no prefix (``{"fuse": "enabled"}``).
+    :func:`vslam.config.from_dict` maps those old keys here (with a warning).
     """
-    return dataclasses.field(default_factory=cls, metadata={"doc": doc, "flat_prefixes": flat_prefixes})
+    return dataclasses.field(default_factory=cls, metadata={"doc": doc, "flat_prefixes": flat_prefixes,
+                                                            "flat_keys": dict(flat_keys or {})})
 
 
 def doc_of(f: dataclasses.Field) -> str:

@@ -57,6 +57,49 @@ class Trajectory:
         return Trajectory(self.timestamps[index], self.T_world_cam[index])
 
 
+def associate_timestamps(
+    t_a: np.ndarray, t_b: np.ndarray, max_diff: float, offset: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i_a, i_b)`` with ``|t_a + offset - t_b| <= max_diff``, one-to-one, sorted by ``i_a``.
+
+    Every candidate pair is sorted by that difference and accepted greedily, each timestamp used at
+    most once: TUM's ``associate.py`` (Sturm et al., IROS 2012), which its ``evaluate_ate.py`` also
+    uses. evo's ``sync.matching_time_indices`` (nearest neighbour of the shorter list) gives the
+    same pairs whenever no timestamp is the nearest of two others; greedy then also pairs the
+    loser with its next candidate. The one association of the project: RGB / depth / right image
+    lists (datasets) and estimate / ground truth (evaluation). Candidates come from a sorted
+    ``searchsorted`` window, so the cost is linear in the candidates, not ``len(t_a) * len(t_b)``.
+    """
+    a = np.asarray(t_a, dtype=float).reshape(-1) + offset
+    b = np.asarray(t_b, dtype=float).reshape(-1)
+    empty = (np.zeros(0, dtype=int), np.zeros(0, dtype=int))
+    if len(a) == 0 or len(b) == 0:
+        return empty
+    order_b = np.argsort(b, kind="stable")
+    bs = b[order_b]
+    lo = np.searchsorted(bs, a - max_diff, side="left")
+    hi = np.searchsorted(bs, a + max_diff, side="right")
+    counts = hi - lo
+    if counts.sum() == 0:
+        return empty
+    ia = np.repeat(np.arange(len(a)), counts)
+    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    ib = order_b[starts + np.arange(counts.sum())]
+    diff = np.abs(a[ia] - b[ib])
+    keep = diff <= max_diff
+    ia, ib, diff = ia[keep], ib[keep], diff[keep]
+    used_a = np.zeros(len(a), dtype=bool)
+    used_b = np.zeros(len(b), dtype=bool)
+    pairs = []
+    for k in np.argsort(diff, kind="stable"):
+        i, j = ia[k], ib[k]
+        if not used_a[i] and not used_b[j]:
+            used_a[i] = used_b[j] = True
+            pairs.append((i, j))
+    out = np.array(sorted(pairs), dtype=int).reshape(-1, 2)
+    return out[:, 0], out[:, 1]
+
+
 def poses_from_tum_rows(rows: np.ndarray) -> np.ndarray:
     """``(N, 7)`` rows ``tx ty tz qx qy qz qw`` -> ``(N, 4, 4)`` poses (quaternions are normalised)."""
     rows = np.asarray(rows, dtype=float).reshape(-1, 7)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from vslam.backend.config import EKFConfig
-from vslam.backend.ekf import PoseEKF, pose_covariance_from_inliers, so3_exp, so3_log, so3_right_jacobian
+from vslam.backend.ekf import PoseEKF, pose_covariance_from_inliers, so3_log, so3_right_jacobian
 from vslam.errors import ConfigError, GeometryError
+from vslam.geometry.lie import so3_exp
 
 
 def _trajectory(n=300, dt=1 / 30):

@@ -10,6 +10,7 @@ import functools
 import numpy as np
 import pytest
 
+from vslam.backend.config import MonoBAConfig
 from vslam.backend.local_mapping import LocalMapper
 from vslam.config import BackendConfig, Config
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
@@ -191,10 +192,10 @@ def _mono_problem(**overrides):
 
 
 def test_monocular_ba_leaves_out_two_view_points():
-    """Monocular local BA keeps only points seen by >= mono_min_observations keyframes (the default
+    """Monocular local BA keeps only points seen by >= mono.min_observations keyframes (the default
     3: no two-view points, whose depth BA pushes outwards); with 2 every point enters, and so it
     does while too few multi-view points exist (the first windows)."""
-    every = _mono_problem(mono_min_observations=2)
+    every = _mono_problem(mono=MonoBAConfig(min_observations=2))
     n_every = np.bincount(every.pt_index(every.obs_pt))
     assert np.sum(n_every == 2) > 50  # the synthetic map has many two-view points
     kept = _mono_problem()
@@ -202,7 +203,7 @@ def test_monocular_ba_leaves_out_two_view_points():
     assert n_kept.min() >= 3 and kept.num_points >= 100
     assert set(kept.pt_ids) < set(every.pt_ids)
     assert kept.num_points == every.num_points - np.sum(n_every == 2)
-    few = _mono_problem(mono_min_multiview_points=10**6)
+    few = _mono_problem(mono=MonoBAConfig(min_multiview_points=10**6))
     assert few.num_points == every.num_points
     # RGB-D / stereo problems are untouched (a depth observation determines a point)
     system, _ = _ba_run()
@@ -214,11 +215,11 @@ def test_monocular_ba_leaves_out_two_view_points():
 
 
 def test_monocular_retriangulate_left_out_points():
-    """``mono_left_out=retriangulate``: the two-view points left out of BA are triangulated again from their
+    """``mono.left_out=retriangulate``: the two-view points left out of BA are triangulated again from their
     two observations with the (corrected) poses; on the synthetic map they land within a few
     percent of their depth of where they were and reproject onto both observations."""
     system, _ = _ba_run()
-    mapper = LocalMapper(system.map, system.camera, "mono", BackendConfig(mono_left_out="retriangulate"))
+    mapper = LocalMapper(system.map, system.camera, "mono", BackendConfig(mono=MonoBAConfig(left_out="retriangulate")))
     newest = max(system.map.keyframes)
     window, fixed = mapper._window(system.map.keyframes[newest])
     problem, ctx = mapper._problem(window, fixed, system.map.local_point_ids(window), newest)
@@ -264,7 +265,7 @@ def _mono_ate(path, backend: BackendConfig) -> tuple[float, int]:
 def test_kitti_monocular_local_ba(shared_data):
     """Real data, monocular, Sim(3) ATE. KITTI 07 (160 frames): local BA used to make it much worse
     (odometry 0.276 m, local BA 0.431 m; fusion and two-view points in BA fed scale drift through
-    the two turns), now 0.385 m (``mono_left_out=retriangulate``; 0.290 with ``keep``, whose
+    the two turns), now 0.385 m (``mono.left_out=retriangulate``; 0.290 with ``keep``, whose
     frames saw-tooth). Every frame gets a pose (the frames before the initialization are localized
     afterwards). KITTI 06 (51 frames): odometry 0.246 m, local BA 0.04-0.05 m."""
     seqs = shared_data / "kitti_odometry" / "sequences"

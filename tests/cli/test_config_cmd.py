@@ -11,7 +11,7 @@ from vslam.backend.config import BackendConfig
 from vslam.cli import main
 from vslam.config import Config, dump_config, flat_key_map, iter_settings, load_config, settings_markdown
 from vslam.errors import ConfigError
-from vslam.features.config import KLTConfig, MatcherConfig, StereoConfig
+from vslam.features.config import KLTConfig, MatcherConfig
 
 SETTINGS_MD = Path(__file__).resolve().parents[2] / "docs" / "settings.md"
 
@@ -29,7 +29,7 @@ def test_settings_md_is_up_to_date():
         "docs/settings.md is stale: regenerate it with `vslam config --markdown > docs/settings.md`")
 
 
-@pytest.mark.parametrize("cls", _classes(Config) + [MatcherConfig, KLTConfig, StereoConfig], ids=lambda c: c.__name__)
+@pytest.mark.parametrize("cls", _classes(Config) + [MatcherConfig, KLTConfig], ids=lambda c: c.__name__)
 def test_every_field_has_a_one_line_doc(cls):
     for f in dataclasses.fields(cls):
         doc = f.metadata.get("doc", "")
@@ -41,8 +41,12 @@ def test_settings_tree():
     keys = [s.key for s in iter_settings(Config)]
     assert len(keys) == len(set(keys)) >= 177
     for key in ("frontend.keyframes.max_frames", "frontend.tracking.min_inliers", "frontend.dense.refine",
-                "backend.local.chi2_mono", "loop.closing.min_inliers", "features.n_features"):
+                "backend.local.chi2_mono", "loop.closing.min_inliers", "features.n_features",
+                "backend.fusion.radius_px", "backend.cull.age_keyframes", "loop.closing.confirm.max_deg",
+                "localize.min_inliers", "localize.reloc_min_inliers"):
         assert key in keys
+    # `vslam localize --set localize.KEY=...` goes through the root Config
+    assert load_config(Config, None, ["localize.min_inliers=25"]).localize.min_inliers == 25
 
 
 def test_cli_prints_keys_defaults_and_docs(capsys):
@@ -53,7 +57,7 @@ def test_cli_prints_keys_defaults_and_docs(capsys):
     assert "backend.ekf.gate_chi2 = .inf" in out
     assert main(["config", "frontend.init"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 7 and all(line.startswith("frontend.init.") for line in lines)
+    assert len(lines) == 13 and all(line.startswith("frontend.init.") for line in lines)
     assert main(["config", "--markdown"]) == 0
     assert capsys.readouterr().out == SETTINGS_MD.read_text()
     assert main(["config", "frontend.nope"]) == 2
@@ -90,4 +94,19 @@ def test_old_flat_keys_map_to_nested_ones_with_a_warning(caplog, tmp_path):
     path.write_text("frontend:\n  init_min_matches: 90\n  init:\n    max_frames: 12\n")
     cfg = load_config(Config, path)
     assert cfg.frontend.init.min_matches == 90 and cfg.frontend.init.max_frames == 12
-    assert flat_key_map(BackendConfig) == {}
+    # the backend's and loop closing's flat groups (an old key without the common prefix: flat_keys)
+    backend = flat_key_map(BackendConfig)
+    assert backend["fuse"] == ("fusion", "enabled") and backend["fuse_radius_px"] == ("fusion", "radius_px")
+    assert backend["fuse_mono"] == ("fusion", "mono") and backend["mono_left_out"] == ("mono", "left_out")
+    assert backend["cull_keyframes"] == ("cull", "keyframes") and backend["redundant_ratio"] == ("cull", "redundant_ratio")
+    closing = flat_key_map(type(Config().loop.closing))
+    assert closing["confirm_max_deg"] == ("confirm", "max_deg") and closing["fuse_ratio"] == ("fuse", "ratio")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        cfg = load_config(Config, None, ["backend.fuse=false", "backend.mono_min_observations=2",
+                                         "backend.cull_age_keyframes=4", "loop.closing.confirm_min_inliers=20"])
+    assert cfg.backend.fusion.enabled is False and cfg.backend.mono.min_observations == 2
+    assert cfg.backend.cull.age_keyframes == 4 and cfg.loop.closing.confirm.min_inliers == 20
+    assert "backend.fuse is deprecated; use backend.fusion.enabled" in caplog.text
+    with pytest.raises(ConfigError, match="mono.min_observations must be >= 2"):
+        load_config(Config, None, ["backend.mono.min_observations=1"])

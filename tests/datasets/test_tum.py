@@ -7,9 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from vslam.datasets import open_dataset
-from vslam.datasets.base import associate, read_timestamped_list
+from vslam.datasets.base import read_timestamped_list
 from vslam.datasets.tum import TUM_PRESETS, TumDataset, tum_preset_from_name
 from vslam.errors import CalibrationError, DatasetError
+from vslam.trajectory import associate_timestamps
 
 pytestmark = pytest.mark.shared
 
@@ -45,7 +46,7 @@ def test_fr1_association_matches_associate_txt(shared_data):
     root = shared_data / "tum_rgbd_freiburg1_desk_9frames"
     t_rgb, _ = read_timestamped_list(root / "rgb.txt", "rgb")
     t_dep, _ = read_timestamped_list(root / "depth.txt", "depth")
-    pairs = associate(t_rgb, t_dep, 0.0, 0.02)
+    pairs = np.column_stack(associate_timestamps(t_rgb, t_dep, 0.02))
     t_a, rows = read_timestamped_list(root / "associate.txt", "assoc", 4)
     np.testing.assert_array_equal(t_rgb[pairs[:, 0]], t_a)
     np.testing.assert_array_equal(t_dep[pairs[:, 1]], [float(r[1]) for r in rows])

@@ -1,12 +1,13 @@
-"""Timestamp association: nearest within max_diff, offset, one-to-one, evo parity, no overlap."""
+"""Timestamp association (vslam.trajectory.associate_timestamps, as evaluation uses it): nearest within
+max_diff, offset, one-to-one, evo parity, no overlap."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from vslam.errors import TrajectoryError
-from vslam.eval.associate import associate, associate_trajectories, match_timestamps
-from vslam.trajectory import Trajectory
+from vslam.eval.associate import associate_trajectories
+from vslam.trajectory import Trajectory, associate_timestamps
 
 
 def traj(ts) -> Trajectory:
@@ -19,7 +20,7 @@ def traj(ts) -> Trajectory:
 def test_nearest_within_max_diff():
     gt = np.arange(0.0, 1.0, 0.01)  # 100 Hz
     est = np.array([0.004, 0.106, 0.5, 0.5149, 2.0, -0.02])
-    i_est, i_gt = associate(est[np.argsort(est)], gt, max_diff=0.01)
+    i_est, i_gt = associate_timestamps(est[np.argsort(est)], gt, max_diff=0.01)
     est_sorted = np.sort(est)
     np.testing.assert_array_equal(est_sorted[i_est], [0.004, 0.106, 0.5, 0.5149])
     np.testing.assert_array_equal(i_gt, [0, 11, 50, 51])  # 0.5149 -> 0.51 (0.0049 < 0.0051)
@@ -28,8 +29,8 @@ def test_nearest_within_max_diff():
 def test_offset_is_added_to_estimate():
     gt = np.arange(0.0, 10.0, 0.1)
     est = gt[20:40] - 3.05  # estimate clock is 3.05 s behind
-    assert len(associate(est, gt, 0.01)[0]) == 0
-    i_est, i_gt = associate(est, gt, 0.01, offset=3.05)
+    assert len(associate_timestamps(est, gt, 0.01)[0]) == 0
+    i_est, i_gt = associate_timestamps(est, gt, 0.01, offset=3.05)
     np.testing.assert_array_equal(i_est, np.arange(20))
     np.testing.assert_array_equal(i_gt, np.arange(20, 40))
 
@@ -37,13 +38,13 @@ def test_offset_is_added_to_estimate():
 def test_one_to_one_keeps_closest():
     a = np.array([1.000, 1.004, 1.007])  # all nearest to b = 1.005
     b = np.array([0.5, 1.005, 2.0, 3.0, 4.0])
-    ia, ib = match_timestamps(a, b, max_diff=0.01)
+    ia, ib = associate_timestamps(a, b, max_diff=0.01)
     np.testing.assert_array_equal(ia, [1])
     np.testing.assert_array_equal(ib, [1])
 
 
 def test_tie_goes_to_earlier():
-    ia, ib = match_timestamps(np.array([1.5]), np.array([1.0, 2.0]), max_diff=1.0)
+    ia, ib = associate_timestamps(np.array([1.5]), np.array([1.0, 2.0]), max_diff=1.0)
     assert ib.tolist() == [0]
 
 
@@ -53,7 +54,7 @@ def test_matches_evo_on_random_stamps(evo):
     est = np.sort(rng.uniform(gt[0] - 1, gt[-1] + 1, 700))
     est = est[np.concatenate([[True], np.diff(est) > 0.03])]  # sparse: evo's matches are one-to-one
     ref_ids, est_ids = evo.sync.matching_time_indices(est, gt, 0.004, 0.0)
-    i_est, i_gt = associate(est, gt, max_diff=0.004)
+    i_est, i_gt = associate_timestamps(est, gt, max_diff=0.004)
     np.testing.assert_array_equal(i_est, ref_ids)
     np.testing.assert_array_equal(i_gt, est_ids)
     assert 100 < len(i_est) < len(est)

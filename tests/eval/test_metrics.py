@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from vslam.errors import TrajectoryError
 from vslam.eval.metrics import (
-    ErrorStats, align, ate_errors, invert_se3, rotation_angle, rpe_errors, rpe_pairs,
+    ErrorStats, align, ate_errors, rotation_angle, rpe_errors, rpe_pairs,
 )
 
 
@@ -37,11 +37,6 @@ def test_rotation_angle_exact_and_near_zero():
     angles = np.array([0.0, 1e-9, 1e-4, 0.3, 2.0, np.pi - 1e-6, np.pi])
     R = Rotation.from_rotvec(np.outer(angles, [1, 2, 2]) / 3).as_matrix()
     np.testing.assert_allclose(rotation_angle(R), angles, rtol=1e-9, atol=1e-12)
-
-
-def test_invert_se3():
-    T = wavy_path(5)
-    np.testing.assert_allclose(invert_se3(T) @ T, np.broadcast_to(np.eye(4), T.shape), atol=1e-12)
 
 
 @pytest.mark.parametrize("mode", ["se3", "sim3"])

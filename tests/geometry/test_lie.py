@@ -13,6 +13,7 @@ from vslam.geometry import (
     interpolate_pose,
     interpolate_trajectory,
     inv_T,
+    inv_se3,
     is_rotation,
     make_sim3,
     make_T,
@@ -68,6 +69,10 @@ def test_se3_exp_log_roundtrip_and_inverse():
         np.testing.assert_allclose(inv_T(T) @ T, np.eye(4), atol=1e-12)
     Ts = np.stack([se3_exp(x) for x in RNG.normal(size=(4, 6))])
     np.testing.assert_allclose(inv_T(Ts) @ Ts, np.broadcast_to(np.eye(4), (4, 4, 4)), atol=1e-12)
+    # the rigid inverse: batched (the evaluation's path) and per frame give the same poses
+    np.testing.assert_allclose(inv_se3(Ts) @ Ts, np.broadcast_to(np.eye(4), (4, 4, 4)), atol=1e-12)
+    np.testing.assert_allclose(inv_se3(Ts[1]), inv_se3(Ts)[1], atol=1e-15)
+    np.testing.assert_allclose(inv_se3(Ts[None]), inv_se3(Ts)[None], atol=0)
     # pure translation: exp of (rho, 0) is a translation by rho
     np.testing.assert_allclose(se3_exp(np.r_[1.0, 2.0, 3.0, 0, 0, 0]), make_T(np.eye(3), [1, 2, 3]))
 

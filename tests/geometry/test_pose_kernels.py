@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vslam.geometry.align import align_ransac, kabsch_batch
+from vslam.errors import GeometryError
+from vslam.geometry.align import align_points
 from vslam.geometry.epipolar import essential_pose
 from vslam.geometry.lie import inv_se3, se3_exp, se3_log
 from vslam.geometry.pnp import refine_pose
@@ -54,17 +55,20 @@ def test_refine_pose_jacobian_gives_a_quadratic_gauss_newton_step(bf):
     assert e1 < 2e-6, e1
 
 
-def test_align_ransac_recovers_rigid_motion():
+def test_align_points_per_point_thresholds_recover_rigid_motion():
+    """The tracker's 3D-3D call: one threshold per pair (here twice as loose for the far half),
+    drawing from the caller's generator."""
     rng = np.random.default_rng(1)
     src = rng.uniform(-1, 1, (200, 3)) + [0, 0, 3]
     T = se3_exp(np.array([0.3, -0.1, 0.2, 0.2, -0.1, 0.3]))
     dst = src @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.002, src.shape)
     dst[:40] += rng.uniform(0.2, 0.5, (40, 3))
-    T_est, mask = align_ransac(src, dst, 0.01, rng=rng)
+    thr = np.where(src[:, 2] > 3.0, 0.02, 0.01)
+    T_est, mask = align_points(src, dst, threshold=thr, max_iters=100, seed=rng)
     assert mask[:40].sum() == 0 and mask[40:].mean() > 0.95
     np.testing.assert_allclose(T_est, T, atol=3e-3)
-    R, t = kabsch_batch(src[None, 40:], dst[None, 40:])
-    np.testing.assert_allclose(R[0], T[:3, :3], atol=3e-3)
+    with pytest.raises(GeometryError, match="threshold"):
+        align_points(src, dst, threshold=thr[:10])
 
 
 def test_essential_pose_translation_and_pure_rotation():

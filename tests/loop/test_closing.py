@@ -91,7 +91,7 @@ def test_loop_closing_removes_injected_drift(loop_frames, sensor):
     # than a loop correction is trusted with); local BA absorbs part of the injected drift
     # (with two-view points in BA: leaving them out lets local BA undo most of the injected drift,
     # and this test is about what loop closing removes)
-    overrides = ["backend.mono_min_observations=2"] if sensor == "mono" else ["backend.local_ba=false"]
+    overrides = ["backend.mono.min_observations=2"] if sensor == "mono" else ["backend.local_ba=false"]
     system, before_poses = _run(loop_frames, sensor, overrides, drift_deg=2.0 if sensor == "mono" else 1.0)
     stats = system.stats()
     loops = stats["loops"]

@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 
 from vslam.backend.drift_demo import ate_rmse, close_loop, simulate_loop
-from vslam.geometry.lie import make_sim3, sim3_decompose
+from vslam.geometry.lie import make_sim3, sim3_decompose, so3_exp
 from vslam.map.pose_graph import correct_points, optimize_pose_graph
-from vslam.backend.schur_lm import so3_exp
 from vslam.errors import GeometryError
 
 

@@ -117,6 +117,55 @@ class EKFConfig:
 
 
 @dataclass(frozen=True)
+class FusionConfig:
+    """Point fusion before each local BA: the window's points and the new keyframe's (ORB-SLAM2 SearchInNeighbors)."""
+
+    enabled: bool = param(True, "before each local BA, fuse the window's points and the new keyframe's (needs association=match)")
+    radius_px: float = param(4.0, "point fusion search radius in pixels")
+    max_descriptor_distance: float = param(50.0, "point fusion descriptor threshold (Hamming)")
+    ratio: float = param(1.0, "point fusion ratio test (1.0: off, the closest descriptor in the radius wins)")
+    # Off: on KITTI 07 (mono, Sim(3) ATE, local BA) fusion raised the ATE on all 5 clips measured (160 frames
+    # 0.431 vs 0.376 m; also with the octave check of ORB-SLAM2's Fuse, or with only its merges or only its
+    # new observations).
+    mono: bool = param(False, "fuse monocular maps too")
+
+
+@dataclass(frozen=True)
+class MonoBAConfig:
+    """Which points a monocular local BA optimizes, and what happens to the ones it leaves out."""
+
+    # 3: no two-view points; their depth drifts ~1 % outwards per local BA, which new keyframes' PnP turns into
+    # scale drift.
+    min_observations: int = param(3, "monocular BA leaves out points seen by fewer keyframes (2 keeps every point)")
+    min_multiview_points: int = param(100, "min_observations is skipped while fewer points would remain")
+    # Measured on KITTI 07 mono, 160 frames (Sim(3) ATE / RPE trans, m; odometry alone 0.276 / 0.029): keep
+    # 0.290 / 0.073 (the left-out points stay where tracking put them, so the frames between keyframes
+    # saw-tooth against the corrected keyframes: RPE x2.5), transport 0.397 / 0.036, retriangulate 0.385 /
+    # 0.034. Over 5 clips (07 from frames 0, 20, 40, 80 and 06 mono) keep averages 0.192, retriangulate 0.222,
+    # odometry 0.252. The default is retriangulate: a map consistent with its keyframes (smooth trajectory)
+    # over the lower ATE that keep gets on KITTI 07.
+    left_out: Literal["keep", "transport", "retriangulate"] = param("retriangulate", "two-view points left out of a monocular BA: keep, transport (with their keyframe) or retriangulate")
+
+    def __post_init__(self) -> None:
+        if self.min_observations < 2:
+            raise ConfigError(f"backend mono.min_observations must be >= 2 (a monocular point needs two views), "
+                              f"got {self.min_observations}")
+
+
+@dataclass(frozen=True)
+class CullingConfig:
+    """Culling after each keyframe: new points too few keyframes observe (ORB-SLAM MapPointCulling), and
+    optionally redundant keyframes (KeyFrameCulling)."""
+
+    min_observations: int = param(2, "a point born two keyframes ago that fewer keyframes observe is culled (0 or 1 disables)")
+    age_keyframes: int = param(3, "a new point is judged by min_observations once its segment has this many keyframes from its own on (ORB-SLAM: 3)")
+    keyframes: bool = param(False, "flag redundant keyframes bad (ORB-SLAM KeyFrameCulling)")
+    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= redundant_min_observers others that makes it redundant")
+    redundant_min_observers: int = param(3, "other keyframes that must see a point for it to count as redundant (ORB-SLAM: 3)")
+    keep_recent_keyframes: int = param(3, "the newest this many keyframes of a segment are never culled")
+
+
+@dataclass(frozen=True)
 class BackendConfig:
     """Which backend runs and how."""
 
@@ -128,23 +177,6 @@ class BackendConfig:
     final_ba: bool = param(False, "run a full global bundle adjustment at the end of the run")
     covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones")
     max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed")
-    # 3: no two-view points; their depth drifts ~1 % outwards per local BA, which new keyframes' PnP turns into
-    # scale drift.
-    mono_min_observations: int = param(3, "monocular BA leaves out points seen by fewer keyframes (2 keeps every point)")
-    mono_min_multiview_points: int = param(100, "mono_min_observations is skipped while fewer points would remain")
-    # Measured on KITTI 07 mono, 160 frames (Sim(3) ATE / RPE trans, m; odometry alone 0.276 / 0.029): keep
-    # 0.290 / 0.073 (the left-out points stay where tracking put them, so the frames between keyframes
-    # saw-tooth against the corrected keyframes: RPE x2.5), transport 0.397 / 0.036, retriangulate 0.385 /
-    # 0.034. Over 5 clips (07 from frames 0, 20, 40, 80 and 06 mono) keep averages 0.192, retriangulate 0.222,
-    # odometry 0.252. The default is retriangulate: a map consistent with its keyframes (smooth trajectory)
-    # over the lower ATE that keep gets on KITTI 07.
-    mono_left_out: Literal["keep", "transport", "retriangulate"] = param("retriangulate", "two-view points left out of a monocular BA: keep, transport (with their keyframe) or retriangulate")
-    cull_min_observations: int = param(2, "a point born two keyframes ago that fewer keyframes observe is culled (0 or 1 disables)")
-    cull_keyframes: bool = param(False, "flag redundant keyframes bad (ORB-SLAM KeyFrameCulling)")
-    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= redundant_min_observers others that makes it redundant")
-    redundant_min_observers: int = param(3, "other keyframes that must see a point for it to count as redundant (ORB-SLAM: 3)")
-    cull_keep_recent_keyframes: int = param(3, "the newest this many keyframes of a segment are never culled")
-    cull_age_keyframes: int = param(3, "a new point is judged by cull_min_observations once its segment has this many keyframes from its own on (ORB-SLAM: 3)")
     stereo_far_baselines: float = param(35.0, "stereo observations of points farther than this many baselines enter BA as monocular (0: off)")
     # ORB-SLAM2's triangulation minimum, cos 0.9998. Otherwise its depth is unobservable and LM slides it along
     # its ray, dragging the poses. EuRoC V1_01 (camera at rest): one such point went from 4.2 m to the camera
@@ -152,14 +184,9 @@ class BackendConfig:
     # short of that minimum (the Schur solver and GTSAM disagreed by 1.0 mm); without it both converge in 4
     # iterations to the same pose (0.5 um apart). EuRoC ATE with local BA 0.89 -> 0.88 mm.
     depthless_min_parallax_deg: float = param(1.15, "stereo/RGB-D: a point with no depth observation in BA needs this parallax, degrees (0: off)")
-    fuse: bool = param(True, "before each local BA, fuse the window's points and the new keyframe's (ORB-SLAM2 SearchInNeighbors; needs association=match)")
-    fuse_radius_px: float = param(4.0, "point fusion search radius in pixels")
-    fuse_max_descriptor_distance: float = param(50.0, "point fusion descriptor threshold (Hamming)")
-    fuse_ratio: float = param(1.0, "point fusion ratio test (1.0: off, the closest descriptor in the radius wins)")
-    # Off: on KITTI 07 (mono, Sim(3) ATE, local BA) fusion raised the ATE on all 5 clips measured (160 frames
-    # 0.431 vs 0.376 m; also with the octave check of ORB-SLAM2's Fuse, or with only its merges or only its
-    # new observations).
-    fuse_mono: bool = param(False, "fuse monocular maps too")
+    fusion: FusionConfig = section(FusionConfig, "point fusion before each local BA", ("fuse_",), {"fuse": "enabled"})
+    mono: MonoBAConfig = section(MonoBAConfig, "which points a monocular local BA optimizes", ("mono_",))
+    cull: CullingConfig = section(CullingConfig, "point and keyframe culling", ("cull_", ""))
     local: LocalBAConfig = section(LocalBAConfig, "windowed (local) bundle adjustment")
     global_ba: GlobalBAConfig = section(GlobalBAConfig, "global bundle adjustment")
     pose_graph: PoseGraphConfig = section(PoseGraphConfig, "pose-graph optimization")
@@ -179,6 +206,3 @@ class BackendConfig:
             raise ConfigError(f"backend lag_frames must be >= 1, got {self.lag_frames}")
         if self.frame_correction not in ("reference", "interpolate"):
             raise ConfigError(f"backend frame_correction must be 'reference' or 'interpolate', got {self.frame_correction!r}")
-        if self.mono_min_observations < 2:
-            raise ConfigError(f"backend mono_min_observations must be >= 2 (a monocular point needs two views), "
-                              f"got {self.mono_min_observations}")

@@ -7,6 +7,7 @@ import numpy as np
 
 from vslam.backend.config import BackendConfig
 from vslam.backend.local_problem import segment_keyframes
+from vslam.geometry.lie import inv_se3
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.mappoint import unique_ids
@@ -23,7 +24,7 @@ class Culling:
 
     def cull_points(self, kf_id: int) -> None:
         """Points without observations die; so do points born two keyframes ago (in this segment)
-        that fewer than ``cull_min_observations`` keyframes observe (ORB-SLAM2 MapPointCulling, with
+        that fewer than ``cull.min_observations`` keyframes observe (ORB-SLAM2 MapPointCulling, with
         the keyframe count as the age; each point is judged once)."""
         store = self.map.points
         n = len(store)
@@ -31,11 +32,11 @@ class Culling:
             return
         alive = store.alive[:n]
         dead = alive & (store.n_obs[:n] <= 0)
-        k_min = self.config.cull_min_observations
+        k_min = self.config.cull.min_observations
         kf = self.map.keyframes.get(kf_id)
         if k_min > 1 and kf is not None:
             seg_ids = sorted(k.id for k in segment_keyframes(self.map, kf.segment))
-            age = self.config.cull_age_keyframes
+            age = self.config.cull.age_keyframes
             if len(seg_ids) >= age:
                 upto = seg_ids[-age]  # points born two keyframes ago had their chance to be re-observed
                 first = store.first_kf[:n]
@@ -49,13 +50,13 @@ class Culling:
 
     def cull_keyframes(self, kf_id: int) -> None:
         """ORB-SLAM KeyFrameCulling over the covisible keyframes of ``kf_id``: a keyframe whose
-        points are >= ``redundant_ratio`` observed by >= ``redundant_min_observers`` other keyframes is flagged bad."""
+        points are >= ``cull.redundant_ratio`` observed by >= ``cull.redundant_min_observers`` other keyframes is flagged bad."""
         store = self.map.points
         kf = self.map.keyframes.get(kf_id)
         if kf is None:
             return
         seg = segment_keyframes(self.map, kf.segment)
-        n_recent = self.config.cull_keep_recent_keyframes
+        n_recent = self.config.cull.keep_recent_keyframes
         if len(seg) < n_recent + 1:
             return
         first = min(k.id for k in seg)
@@ -78,7 +79,7 @@ class Culling:
                 in_o[obs] = True
                 seen += in_o[ids]
                 in_o[obs] = False
-            if np.mean(seen >= self.config.redundant_min_observers) >= self.config.redundant_ratio:
+            if np.mean(seen >= self.config.cull.redundant_min_observers) >= self.config.cull.redundant_ratio:
                 self.set_bad(c)
 
     def set_bad(self, kf: KeyFrame) -> None:
@@ -89,7 +90,7 @@ class Culling:
             return
         parent = self.map.keyframes[parents[0]]
         kf.extra["parent"] = parent.id
-        kf.extra["T_parent_kf"] = np.linalg.inv(parent.T_world_cam) @ kf.T_world_cam
+        kf.extra["T_parent_kf"] = inv_se3(parent.T_world_cam) @ kf.T_world_cam
         kf.bad = True
         for o in list(links):
             self.map.covisibility.get(o, {}).pop(kf.id, None)

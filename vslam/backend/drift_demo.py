@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from vslam.map.pose_graph import optimize_pose_graph
-from vslam.backend.schur_lm import so3_exp
 from vslam.errors import ConfigError
-from vslam.geometry.lie import inv_T, make_sim3
+from vslam.geometry.lie import inv_se3, make_sim3, so3_exp
 from vslam.geometry.umeyama import umeyama
 
 LOG = logging.getLogger(__name__)
@@ -61,7 +60,7 @@ def simulate_loop(n_poses: int = 100, radius: float = 10.0, noise: float = 1.0, 
     sigma_rot = np.deg2rad(0.1) * noise
     sigma_trans = 0.005 * noise
     yaw_bias = np.deg2rad(0.2) * noise
-    T_true_rel = inv_T(T_true[:-1]) @ T_true[1:]
+    T_true_rel = inv_se3(T_true[:-1]) @ T_true[1:]
     m = n_poses - 1
     noise_T = np.tile(np.eye(4), (m, 1, 1))
     noise_T[:, :3, :3] = so3_exp(rng.normal(0.0, 1.0, (m, 3)) * sigma_rot + np.array([0.0, yaw_bias, 0.0]))
@@ -93,7 +92,7 @@ def close_loop(sim: LoopSimulation, sim3: bool = False) -> np.ndarray:
     n = len(sim.T_true)
     info = np.diag([1 / sim.sigma_rot**2] * 3 + [1 / sim.sigma_trans**2] * 3 + ([1e4] if sim3 else []))
     edges = [(k, k + 1, sim.T_rel[k], info) for k in range(n - 1)]
-    T_loop = inv_T(sim.T_true[-1]) @ sim.T_true[0]
+    T_loop = inv_se3(sim.T_true[-1]) @ sim.T_true[0]
     if sim3:
         # the loop measures node 0 in the frame of node N-1, whose local map is scale[-1] larger
         S_loop = make_sim3(sim.scale[-1], T_loop[:3, :3], sim.scale[-1] * T_loop[:3, 3])

@@ -54,22 +54,13 @@ import numpy as np
 
 from vslam.backend.config import EKFConfig
 from vslam.errors import GeometryError
+from vslam.geometry.lie import so3_exp
 
 LOG = logging.getLogger(__name__)
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation vector ``(3,)`` -> rotation matrix."""
-    w = np.asarray(w, dtype=float)
-    th = float(np.linalg.norm(w))
-    K = _skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:

@@ -24,18 +24,16 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from vslam.geometry.lie import inv_T
+from vslam.geometry.lie import inv_se3, slerp_rotation
 from vslam.map.keyframe import KeyFrame
 
 
 def blend_corrections(D_a: np.ndarray, D_b: np.ndarray, s: np.ndarray) -> np.ndarray:
     """``D_a [Exp(s phi) | s t]`` with ``(phi, t)`` of ``D_a^-1 D_b``, vectorized over ``(N, 4, 4)``."""
-    rel = inv_T(D_a) @ D_b
-    phi = Rotation.from_matrix(rel[:, :3, :3]).as_rotvec()
+    rel = inv_se3(D_a) @ D_b
     E = np.tile(np.eye(4), (len(s), 1, 1))
-    E[:, :3, :3] = Rotation.from_rotvec(s[:, None] * phi).as_matrix()
+    E[:, :3, :3] = slerp_rotation(np.eye(3), rel[:, :3, :3], s)
     E[:, :3, 3] = s[:, None] * rel[:, :3, 3]
     return D_a @ E
 
@@ -66,7 +64,7 @@ def frame_poses(timestamps: np.ndarray, ref_ids: np.ndarray, T_world_cam_rec: np
     if len(has) == 0:
         return T
     T_ref_now = np.stack([keyframes[int(r)].T_world_cam for r in ref_ids[has]])
-    D = T_ref_now @ inv_T(np.asarray(T_world_ref_rec, float)[has])  # rigid: T_world_kf T_kf_cam
+    D = T_ref_now @ inv_se3(np.asarray(T_world_ref_rec, float)[has])  # rigid: T_world_kf T_kf_cam
     if interpolate:
         targets = sorted((k.segment, k.timestamp, k.id) for k in keyframes.values() if k.id in T_world_kf_inserted)
         if targets:
@@ -94,6 +92,6 @@ def frame_poses(timestamps: np.ndarray, ref_ids: np.ndarray, T_world_cam_rec: np
                 s = np.clip((t_i[ok] - t_a) / np.maximum(t_b - t_a, 1e-12), 0.0, 1.0)
                 T_b_now = np.stack([keyframes[int(k)].T_world_cam for k in b])
                 T_b_ins = np.stack([T_world_kf_inserted[int(k)] for k in b])
-                D[ok] = blend_corrections(D[ok], T_b_now @ inv_T(T_b_ins), s)
+                D[ok] = blend_corrections(D[ok], T_b_now @ inv_se3(T_b_ins), s)
     T[has] = D @ T[has]
     return T

@@ -69,9 +69,9 @@ class NeighbourFusion:
         if len(vis) == 0:
             return 0
         binary = kf.descriptors.dtype == np.uint8
-        m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fuse_radius_px,
-                               binary, self.config.fuse_max_descriptor_distance if binary else None,
-                               ratio=self.config.fuse_ratio,
+        m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fusion.radius_px,
+                               binary, self.config.fusion.max_descriptor_distance if binary else None,
+                               ratio=self.config.fusion.ratio,
                                kp_tree=kf.keypoint_tree())
         if len(m) == 0:
             return 0

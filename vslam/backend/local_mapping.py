@@ -6,21 +6,21 @@ Sec. VI-B):
 1. **Window.** The new keyframe, the ``window_size`` most recent keyframes of its map segment and
    its ``covisible_keyframes`` strongest covisibility neighbours (links to non-adjacent keyframes)
    are optimized, with every live map point they observe.
-1b. **Fuse** (``fuse``, needs descriptors): the window's points are projected into the new
+1b. **Fuse** (``fusion.enabled``, needs descriptors): the window's points are projected into the new
    keyframe and the new keyframe's points into the window; chi-square-checked descriptor matches add
    observations or merge duplicate points (ORB-SLAM2 SearchInNeighbors), so keyframes share points.
-   Monocular maps skip it unless ``fuse_mono`` (measured on KITTI 07: it raised the ATE on every clip).
+   Monocular maps skip it unless ``fusion.mono`` (measured on KITTI 07: it raised the ATE on every clip).
 2. **Gauge.** Keyframes outside the window that observe those points enter the problem with their
    poses held constant; the first keyframe of the segment is always constant. Monocular problems
    hold at least two keyframes constant so the scale is fixed too, and leave out the points fewer
-   than ``mono_min_observations`` keyframes see (two-view points: their depth drifts outwards in BA).
+   than ``mono.min_observations`` keyframes see (two-view points: their depth drifts outwards in BA).
    Stereo / RGB-D problems leave out points with no depth or disparity whose rays span less than
    ``depthless_min_parallax_deg`` (their depth is unobservable).
 3. **Solve** with :func:`vslam.backend.local_bundle_adjustment` (robust pass, chi-square outlier
    removal, refinement) and write poses (``kf.T_world_cam``) and points back into the map.
 4. **Cull.** Observations failing the chi-square test are removed (``kf.point_ids[i] = -1``);
    points left without observations die; recent points that too few keyframes re-observed die
-   (ORB-SLAM's MapPointCulling); optionally redundant keyframes (>= ``redundant_ratio`` of their points
+   (ORB-SLAM's MapPointCulling); optionally redundant keyframes (>= ``cull.redundant_ratio`` of their points
    seen by >= 3 other keyframes, ORB-SLAM's KeyFrameCulling) are flagged ``bad``. A culled keyframe
    stays in ``map.keyframes`` (frames reference it) and its pose follows its parent keyframe (the
    strongest covisible one) rigidly from then on.
@@ -58,6 +58,7 @@ from vslam.backend.local_problem import LocalProblemBuilder, ProblemContext, max
 from vslam.backend.map_writeback import PointWriteback
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
 from vslam.map.keyframe_queue import KeyframeQueue, LaggedQueue
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
@@ -187,7 +188,7 @@ class LocalMapper:
         copies, so :meth:`_solve` may run in another thread while tracking edits the map)."""
         t0 = time.perf_counter()
         with self.lock:
-            if self.config.fuse and (self.sensor != "mono" or self.config.fuse_mono):
+            if self.config.fusion.enabled and (self.sensor != "mono" or self.config.fusion.mono):
                 self.fusion.fuse_neighbours(kf_id)
             built = self.problems.build_local(kf_id)
             epoch = self.map.loop_epoch
@@ -231,7 +232,7 @@ class LocalMapper:
             if before is not None:
                 self._propagate_to_new_keyframes(before, job.known)
             self.culling.cull_points(kf_id)
-            if self.config.cull_keyframes:
+            if self.config.cull.keyframes:
                 self.culling.cull_keyframes(kf_id)
             self._update_bad_keyframes()
         self._times.append(job.prepare_s + time.perf_counter() - t0 + (0.0 if self._parallel else result.time_s))
@@ -284,10 +285,10 @@ class LocalMapper:
                 if kid == self._newest_kf():
                     moved = (kid, kf.T_world_cam.copy(), T.copy())
                 if ctx.left_out is not None:
-                    corrections[kid] = T @ np.linalg.inv(kf.T_world_cam)
+                    corrections[kid] = T @ inv_se3(kf.T_world_cam)
                 kf.T_world_cam = T.copy()
         if ctx.left_out is not None and len(ctx.left_out[0]) and corrections:
-            if self.config.mono_left_out == "retriangulate":
+            if self.config.mono.left_out == "retriangulate":
                 self._retriangulate_left_out(*ctx.left_out, corrections)
             else:
                 self.writeback.transport_left_out(ctx.left_out[0], corrections)
@@ -400,7 +401,7 @@ class LocalMapper:
             if not older:
                 continue
             ref = max(older)
-            D = self.map.keyframes[ref].T_world_cam @ np.linalg.inv(before[ref])
+            D = self.map.keyframes[ref].T_world_cam @ inv_se3(before[ref])
             T_old = kf.T_world_cam.copy()
             kf.T_world_cam = D @ T_old
             ids = np.flatnonzero(store.alive[:n] & (store.first_kf[:n] == kid))

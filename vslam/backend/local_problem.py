@@ -122,14 +122,14 @@ class LocalProblemBuilder:
             ok_pt &= has3 | (max_parallax_deg(self._centres(kf_ids, c["kf"]), store.position[c["pt"]], inv, len(pt_ids))
                              >= self.config.depthless_min_parallax_deg)
         left_out = None
-        if self.sensor == "mono" and self.config.mono_min_observations > 2:
+        if self.sensor == "mono" and self.config.mono.min_observations > 2:
             # two-view points: the least constrained depth, which BA pushes outwards (~1 % per
             # window on KITTI 07) and the next keyframe's PnP turns into scale drift; they stay in
             # the map as triangulated (and join BA once a third keyframe sees them). Not in the
             # first windows, where every point is a two-view one.
-            multi = n_obs >= self.config.mono_min_observations
-            if multi.sum() >= self.config.mono_min_multiview_points:
-                if self.config.mono_left_out != "keep":
+            multi = n_obs >= self.config.mono.min_observations
+            if multi.sum() >= self.config.mono.min_multiview_points:
+                if self.config.mono.left_out != "keep":
                     lo = (ok_pt & ~multi)[inv]
                     left_out = (c["pt"][lo], c["kf"][lo], c["uv"][lo])
                 ok_pt &= multi

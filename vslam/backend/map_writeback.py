@@ -17,7 +17,7 @@ class PointWriteback:
         self.camera = camera
 
     def transport_left_out(self, pt: np.ndarray, corrections: dict[int, np.ndarray]) -> None:
-        """``mono_left_out=transport``: a point left out of a monocular BA keeps its coordinates in
+        """``mono.left_out=transport``: a point left out of a monocular BA keeps its coordinates in
         its reference (first) keyframe, i.e. moves with that keyframe's correction
         ``X <- T_after T_before^-1 X`` (as loop correction moves points, ORB-SLAM2 CorrectLoop), so
         tracking does not meet stale points next to corrected poses."""
@@ -32,7 +32,7 @@ class PointWriteback:
 
     def retriangulate_left_out(self, pt: np.ndarray, kf: np.ndarray, uv: np.ndarray,
                                 corrections: dict[int, np.ndarray]) -> None:
-        """``mono_left_out=retriangulate``: points left out of a monocular BA (two-view points) are triangulated
+        """``mono.left_out=retriangulate``: points left out of a monocular BA (two-view points) are triangulated
         again (linear DLT, HZ 12.2) from their two observations with the corrected keyframe poses, so
         tracking does not meet stale points next to corrected poses (see the config for the measured
         trade-off). A point whose new triangulation is not in front of both keyframes keeps its

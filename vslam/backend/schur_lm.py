@@ -40,6 +40,7 @@ import scipy.linalg
 import scipy.sparse
 
 from vslam.backend import schur_kernels
+from vslam.geometry.lie import so3_exp
 
 try:  # BLAS threads on a busy 2-core machine make the 60 x 9000 GEMM 30x slower; one thread is best
     from threadpoolctl import ThreadpoolController
@@ -47,20 +48,6 @@ except ImportError:  # pragma: no cover - optional
     ThreadpoolController = None
 
 LOG = logging.getLogger(__name__)
-
-
-def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula for ``(N, 3)`` rotation vectors -> ``(N, 3, 3)`` rotation matrices."""
-    phi = np.asarray(phi, dtype=float).reshape(-1, 3)
-    theta = np.linalg.norm(phi, axis=1)
-    small = theta < 1e-8
-    th = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
-    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
-    K = np.zeros((len(phi), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
-    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
 
 
 @dataclass

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam.backend.problem import BAProblem
-from vslam.backend.schur_lm import so3_exp
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import so3_exp
 
 
 @dataclass

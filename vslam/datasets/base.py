@@ -6,7 +6,6 @@ Shared pieces (in :mod:`vslam.datasets.images`, :mod:`vslam.datasets.timestamps`
 * :func:`load_image` / :func:`load_depth`: decode one file with a :class:`DatasetError` that names
   it (missing, unreadable, truncated, wrong size) instead of OpenCV's silent ``None``.
 * :func:`read_timestamped_list`: TUM-style ``timestamp filename`` lists (``rgb.txt``), checked sorted.
-* :func:`associate`: TUM ``associate.py`` matching of two timestamp lists (greedy by |dt|).
 * :func:`interpolate_poses`: ground truth at arbitrary times (SLERP + linear translation).
 * :func:`read_camera_yaml`: the small camera YAML (``fx fy cx cy width height [dist baseline
   depth_scale fps]``), also accepting ORB-SLAM style ``Camera.fx`` keys.
@@ -38,13 +37,13 @@ from vslam.datasets.images import (
     require_dir,
     require_file,
 )
-from vslam.datasets.timestamps import associate, check_timestamps, interpolate_poses, read_timestamped_list
+from vslam.datasets.timestamps import check_timestamps, interpolate_poses, read_timestamped_list
 from vslam.errors import DatasetError
 from vslam.geometry.camera import PinholeCamera
 from vslam.trajectory import Trajectory
 
 __all__ = [
-    "IMAGE_EXTENSIONS", "MAX_IMAGE_PIXELS", "SENSORS", "CorruptFrameError", "Dataset", "associate",
+    "IMAGE_EXTENSIONS", "MAX_IMAGE_PIXELS", "SENSORS", "CorruptFrameError", "Dataset",
     "check_timestamps", "image_header_size", "interpolate_poses", "list_images", "load_depth", "load_image",
     "natural_key", "read_camera_yaml", "read_timestamped_list", "require_dir", "require_file",
 ]

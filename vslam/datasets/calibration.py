@@ -37,6 +37,7 @@ import numpy as np
 from vslam.datasets.camera_yaml import load_yaml as _load_yaml, read_camera_yaml
 from vslam.errors import CalibrationError
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
 
 log = logging.getLogger(__name__)
 
@@ -258,7 +259,7 @@ def _read_orbslam3(f: _Fields, image_size) -> Calibration:
         return Calibration(left, "orbslam3", model, extras=extras, source=str(f.path))
     if "Camera2.fx" in f.data:
         T_c1_c2 = _rigid(f.array("Stereo.T_c1_c2", (12, 16)), str(f.path))
-        cal = Calibration(left, "orbslam3", model, cam(2), np.linalg.inv(T_c1_c2), extras, str(f.path))
+        cal = Calibration(left, "orbslam3", model, cam(2), inv_se3(T_c1_c2), extras, str(f.path))
         return _finish_stereo(cal)
     return Calibration(left, "orbslam3", model, extras=extras, source=str(f.path))
 

@@ -39,6 +39,7 @@ from vslam.errors import CalibrationError, DatasetError, TrajectoryError
 from vslam.textfile import open_text
 from vslam.trajectory import Trajectory, read_euroc, read_tum
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +162,7 @@ class EurocDataset(Dataset):
         c0, c1 = self.cam0, self.cam1
         if (c0.width, c0.height) != (c1.width, c1.height):
             raise CalibrationError(f"{self.mav0}: cam0 and cam1 have different resolutions")
-        T_cam1_cam0 = np.linalg.inv(self.T_body_cam1) @ self.T_body_cam0
+        T_cam1_cam0 = inv_se3(self.T_body_cam1) @ self.T_body_cam0
         size = (c0.width, c0.height)
         R1, R2, P1, P2, _Q, _r1, _r2 = cv2.stereoRectify(
             c0.K, c0.dist_coeffs, c1.K, c1.dist_coeffs, size,

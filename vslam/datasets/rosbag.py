@@ -28,10 +28,11 @@ from typing import Iterator
 
 import numpy as np
 
-from vslam.datasets.base import CorruptFrameError, Dataset, associate, interpolate_poses
+from vslam.datasets.base import CorruptFrameError, Dataset, interpolate_poses
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
 from vslam.geometry.camera import PinholeCamera
+from vslam.trajectory import associate_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +180,7 @@ class RosbagDataset(Dataset):
             self._second = None
         else:
             t2, bag2 = second_idx
-            pairs = associate(t_color, t2, 0.0, max_difference if self.sensor == "rgbd" else 1e-3)
+            pairs = np.column_stack(associate_timestamps(t_color, t2, max_difference if self.sensor == "rgbd" else 1e-3))
             if not len(pairs):
                 raise DatasetError(f"{path}: no {second} message is within {max_difference} s of a {color} message")
             keep = pairs[:, 0]

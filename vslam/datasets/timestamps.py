@@ -1,14 +1,14 @@
-"""Timestamps: TUM-style ``timestamp field ...`` lists (checked sorted), the TUM ``associate.py``
-matching of two timestamp lists and ground truth interpolated at arbitrary times."""
+"""Timestamps: TUM-style ``timestamp field ...`` lists (checked sorted) and ground truth
+interpolated at arbitrary times. Two lists are matched with :func:`vslam.trajectory.associate_timestamps`."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from vslam.datasets.images import require_file
 from vslam.errors import DatasetError
+from vslam.geometry.lie import slerp_rotation
 from vslam.textfile import open_text
 from vslam.trajectory import Trajectory
 
@@ -58,47 +58,11 @@ def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> 
     return np.array(ts, dtype=float), rows
 
 
-def associate(
-    t_first: np.ndarray, t_second: np.ndarray, offset: float = 0.0, max_difference: float = 0.02
-) -> np.ndarray:
-    """Match two timestamp lists like TUM's ``associate.py``.
-
-    Every candidate pair with ``|t1 - (t2 + offset)| < max_difference`` is sorted by that
-    difference and accepted greedily, each timestamp used at most once (Sturm et al., IROS 2012,
-    ``associate.py``). Returns ``(M, 2)`` index pairs sorted by the first index.
-    """
-    t1 = np.asarray(t_first, dtype=float)
-    t2 = np.asarray(t_second, dtype=float) + offset
-    order2 = np.argsort(t2, kind="stable")
-    t2s = t2[order2]
-    lo = np.searchsorted(t2s, t1 - max_difference, side="left")
-    hi = np.searchsorted(t2s, t1 + max_difference, side="right")
-    counts = hi - lo
-    if counts.sum() == 0:
-        return np.zeros((0, 2), dtype=int)
-    i1 = np.repeat(np.arange(len(t1)), counts)
-    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    j_sorted = starts + np.arange(counts.sum())
-    i2 = order2[j_sorted]
-    diff = np.abs(t1[i1] - t2[i2])
-    keep = diff < max_difference
-    i1, i2, diff = i1[keep], i2[keep], diff[keep]
-    used1 = np.zeros(len(t1), dtype=bool)
-    used2 = np.zeros(len(t2), dtype=bool)
-    pairs = []
-    for k in np.argsort(diff, kind="stable"):
-        a, b = i1[k], i2[k]
-        if not used1[a] and not used2[b]:
-            used1[a] = used2[b] = True
-            pairs.append((a, b))
-    out = np.array(sorted(pairs), dtype=int).reshape(-1, 2)
-    return out
-
-
 def interpolate_poses(
     gt: Trajectory, t_query: np.ndarray, max_gap: float = 0.1, exact_tol: float = 1e-5
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth poses at ``t_query`` (SLERP rotation, linear translation between neighbours).
+    """Ground-truth poses at ``t_query`` (SLERP rotation, :func:`vslam.geometry.lie.slerp_rotation`,
+    linear translation between neighbours).
 
     A query within ``exact_tol`` seconds of a GT sample takes that sample; otherwise it needs GT
     samples on both sides no more than ``max_gap`` seconds apart. Returns
@@ -132,12 +96,8 @@ def interpolate_poses(
         i0, i1 = i0[ok], i1[ok]
         if len(q_idx):
             alpha = (t_query[q_idx] - tg[i0]) / (tg[i1] - tg[i0])
-            R0 = Rotation.from_matrix(gt.T_world_cam[i0, :3, :3])
-            R1 = Rotation.from_matrix(gt.T_world_cam[i1, :3, :3])
-            delta = (R0.inv() * R1).as_rotvec()
-            R = R0 * Rotation.from_rotvec(alpha[:, None] * delta)
             Ti = np.tile(np.eye(4), (len(q_idx), 1, 1))
-            Ti[:, :3, :3] = R.as_matrix()
+            Ti[:, :3, :3] = slerp_rotation(gt.T_world_cam[i0, :3, :3], gt.T_world_cam[i1, :3, :3], alpha)
             p0 = gt.T_world_cam[i0, :3, 3]
             p1 = gt.T_world_cam[i1, :3, 3]
             Ti[:, :3, 3] = p0 + alpha[:, None] * (p1 - p0)

@@ -3,7 +3,8 @@
 Layout: ``rgb.txt`` and ``depth.txt`` (``timestamp filename`` lists), ``rgb/*.png``,
 ``depth/*.png`` (16-bit, metres = value / 5000), ``groundtruth.txt`` (TUM trajectory, ~100 Hz),
 optionally ``associate.txt`` (``t_rgb rgb t_depth depth``), which is used when present; otherwise
-rgb and depth are matched like TUM's ``associate.py`` (max difference 0.02 s).
+rgb and depth are matched like TUM's ``associate.py`` (:func:`vslam.trajectory.associate_timestamps`,
+max difference 0.02 s).
 
 Calibration, in order: the ``camera`` argument; ``camera.yaml`` in the sequence folder (see
 :func:`vslam.datasets.calibration.read_camera_yaml`); the freiburg1/2/3 preset chosen from the folder
@@ -28,7 +29,6 @@ import numpy as np
 
 from vslam.datasets.base import (
     Dataset,
-    associate,
     check_timestamps,
     interpolate_poses,
     load_depth,
@@ -39,7 +39,7 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError
-from vslam.trajectory import read_tum
+from vslam.trajectory import associate_timestamps, read_tum
 from vslam.geometry.camera import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -103,7 +103,7 @@ def _rgbd_pairs(assoc_path: Path, depth_path: Path, rgb_path: Path, t_rgb, rgb_f
     elif depth_path.is_file():
         t_dl, drows = read_timestamped_list(depth_path, "depth list")
         check_timestamps(t_dl, depth_path)
-        pairs = associate(t_rgb, t_dl, 0.0, max_difference)
+        pairs = np.column_stack(associate_timestamps(t_rgb, t_dl, max_difference))
         if len(pairs) == 0:
             raise DatasetError(
                 f"{depth_path}: no depth timestamp is within {max_difference} s of an rgb timestamp "
@@ -120,7 +120,7 @@ def _stereo_pairs(right_path: Path, rgb_path: Path, t_rgb, rgb_files):
         return None
     t_r, rrows = read_timestamped_list(right_path, "right image list")
     check_timestamps(t_r, right_path)
-    pairs = associate(t_rgb, t_r, 0.0, 1e-3)
+    pairs = np.column_stack(associate_timestamps(t_rgb, t_r, 1e-3))
     if len(pairs) == 0:
         raise DatasetError(f"{right_path}: no right timestamp matches an rgb timestamp of {rgb_path}")
     return t_rgb[pairs[:, 0]], [rgb_files[i] for i in pairs[:, 0]], [rrows[j][0] for j in pairs[:, 1]]

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from vslam.errors import GeometryError, TrajectoryError
+from vslam.geometry.lie import inv_se3
 from vslam.geometry.umeyama import umeyama
 
 ALIGN_MODES = ("none", "se3", "sim3", "scale", "origin")
@@ -50,16 +51,6 @@ class ErrorStats:
 
     def to_dict(self) -> dict[str, float]:
         return asdict(self)
-
-
-def invert_se3(T: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms ``(..., 4, 4)`` using ``R^T`` (as the benchmarks do)."""
-    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = R_t
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R_t, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -123,7 +114,7 @@ def align(
     if mode == "none":
         return Alignment(mode, np.eye(3), np.zeros(3), 1.0)
     if mode == "origin":
-        T = T_gt[0] @ invert_se3(T_est[0])
+        T = T_gt[0] @ inv_se3(T_est[0])
         return Alignment(mode, T[:3, :3], T[:3, 3], 1.0)
     try:
         R, t, s = umeyama(T_est[:n, :3, 3], T_gt[:n, :3, 3], with_scale=mode in ("sim3", "scale"))
@@ -217,7 +208,7 @@ def rpe_errors(
     if len(pairs) == 0:
         return np.zeros(0), np.zeros(0)
     i, j = pairs[:, 0], pairs[:, 1]
-    Q_rel = invert_se3(T_gt[i]) @ T_gt[j]
-    P_rel = invert_se3(T_est[i]) @ T_est[j]
-    E = invert_se3(Q_rel) @ P_rel
+    Q_rel = inv_se3(T_gt[i]) @ T_gt[j]
+    P_rel = inv_se3(T_est[i]) @ T_est[j]
+    E = inv_se3(Q_rel) @ P_rel
     return np.linalg.norm(E[:, :3, 3], axis=1), np.degrees(rotation_angle(E[:, :3, :3]))

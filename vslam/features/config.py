@@ -90,32 +90,3 @@ class KLTConfig:
             raise ConfigError(f"klt.win_size={self.win_size} must be odd and >= 3")
         if self.max_level < 0:
             raise ConfigError(f"klt.max_level={self.max_level} must be >= 0")
-
-
-@dataclass(frozen=True)
-class StereoConfig:
-    """Left-right matching of a rectified stereo pair (ORB-SLAM2's ``ComputeStereoMatches``)."""
-
-    max_row_diff: float = param(2.0, "allowed row difference in pixels at level 0, times the right keypoint's octave scale")
-    min_disparity: float = param(0.5, "smallest accepted disparity in pixels (> 0 keeps depth finite)")
-    max_disparity: float | None = param(None, "largest accepted disparity in pixels; null: fx * baseline / min_depth, else the image width")
-    min_depth: float = param(0.5, "metres; derives max_disparity from a camera")
-    max_distance: float | None = param(None, "descriptor distance bound; null: 100 bits for binary (ORB-SLAM TH_HIGH), none for float")
-    ratio: float = param(0.9, "best < ratio * second-best among the row candidates (1.0 disables)")
-    octave_tolerance: int = param(1, "right keypoints must lie within this many octaves of the left one")
-    refine: bool = param(True, "sub-pixel refinement by SAD block matching along the row plus a parabola fit")
-    sad_window: int = param(5, "half size of the SAD patch (5 -> 11x11) at the keypoint's octave")
-    sad_search: int = param(5, "half range of the SAD search along the row, in level pixels")
-    # parabola: ~0.2-0.3 px bias on clean shifts; lk: ~0.05 px
-    subpixel: str = param("lk", "parabola (ORB-SLAM2: through the SAD minimum) or lk (then 1-D Lucas-Kanade at full resolution)")
-    lk_window: int = param(5, "half size of the full-resolution LK window (5 -> 11x11)")
-
-    def __post_init__(self) -> None:
-        if self.subpixel not in ("parabola", "lk"):
-            raise ConfigError(f"stereo.subpixel={self.subpixel!r} must be 'parabola' or 'lk'")
-        if self.max_row_diff <= 0:
-            raise ConfigError(f"stereo.max_row_diff={self.max_row_diff} must be > 0")
-        if self.min_disparity < 0:
-            raise ConfigError(f"stereo.min_disparity={self.min_disparity} must be >= 0")
-        if self.sad_window < 1 or self.sad_search < 1:
-            raise ConfigError("stereo.sad_window and stereo.sad_search must be >= 1")

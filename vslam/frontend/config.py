@@ -24,6 +24,10 @@ class DepthConfig:
     max_depth: float = param(10.0, "metres; farther RGB-D depths are ignored")
     stereo_max_depth_baselines: float = param(60.0, "stereo points farther than this many baselines are 'far' (no depth)")
     stereo_max_dy: float = param(1.5, "px; rows of a rectified stereo match must agree within this")
+    stereo_flow_window: int = param(11, "window side of the left-to-right pyramidal LK that finds stereo matches, pixels")
+    stereo_flow_levels: int = param(4, "pyramid levels above the base of that LK")
+    stereo_flow_max_iter: int = param(5, "LK iterations per level (the row refinement sets the final disparity)")
+    stereo_flow_eps: float = param(0.1, "LK convergence threshold per level")
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,13 @@ class TrackingConfig:
     enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search")
     second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers")
     prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers")
+    refine_rounds: int = param(3, "rounds of the robust pose-only refinement (chi-square outliers dropped between rounds)")
+    refine_rounds_prediction: int = param(2, "the same when only refining the pose from the motion prediction")
+    pnp_refine_rounds: int = param(2, "refinement rounds inside PnP RANSAC")
+    # with depth, a first-pass pose only places the second association pass (gate 4.5 px), which a refinement
+    # with the depth residuals follows: one LM round on its inliers is enough there (monocular KITTI 07
+    # odometry drifts more with it: 1.16 vs < 1 m)
+    pnp_refine_rounds_first_pass: int = param(1, "stereo/RGB-D: refinement rounds inside the first pass's PnP RANSAC")
     align_iterations: int = param(100, "3D-3D RANSAC iterations")
     align_refine_iterations: int = param(30, "3D-3D RANSAC iterations when only refining a pose")
     align_stereo_disparity_px: float = param(2.0, "stereo 3D-3D threshold is at least the depth error of this disparity error, pixels")
@@ -132,6 +143,12 @@ class MonoInitConfig:
     match_ratio: float = param(0.9, "ratio test of the matching to the reference frame")
     max_descriptor_distance: float = param(64.0, "Hamming bound of the matching to the reference frame (ORB)")
     min_depth_points: int = param(50, "stereo/RGB-D: a map starts on a frame with max(2 * tracking.min_inliers, this) points with depth")
+    essential_threshold_factor: float = param(2.0, "essential-matrix RANSAC threshold of the two-view initialization, times tracking.essential_px")
+    min_inlier_fraction: float = param(0.6, "essential-matrix inliers needed, fraction of min_matches")
+    reproj_threshold_factor: float = param(4.0, "triangulated points must reproject within this many times tracking.essential_px in both views")
+    min_point_parallax_deg: float = param(0.2, "triangulated points need more ray parallax than this, degrees")
+    min_point_fraction: float = param(0.5, "good triangulated points needed, fraction of min_matches")
+    parallax_rank: int = param(50, "the parallax of the point of this rank (largest first; ORB-SLAM: 50) is tested against min_parallax_deg")
 
 
 @dataclass(frozen=True)
@@ -164,6 +181,14 @@ class DenseConfig:
     links: bool = param(True, "keyframes posed by dense alignment keep that relative pose in local BA (vslam.backend.dense_links)")
     max_depth: float = param(6.0, "metres; dense alignment and dense links use depths up to min(depth.max_depth, this)")
     doubtful_agreement: float = param(0.9, "a feature pose whose depths agree less than this is also refined from the prediction and from no motion")
+    min_agreement: float = param(0.6, "a dense alignment is refused when less of the aligned depths agree (depth_icp.depth_agreement)")
+    agreement_tolerance_m: float = param(0.02, "depths agree within this times max(1, z^2), metres (Kinect noise, Khoshelham & Elberink 2012)")
+    agreement_step: int = param(8, "depth agreement is measured on every this-many-th pixel (rows and columns)")
+    max_step_deg: float = param(30.0, "a dense alignment rotating more than this is refused, degrees")
+    max_step_m: float = param(0.5, "a dense alignment moving more than this is refused, metres")
+    icp_max_depth_diff: float = param(0.07, "OpenCV ICP odometry: correspondences differ in depth by at most this, metres")
+    icp_max_points_part: float = param(0.35, "OpenCV ICP odometry: at most this fraction of the pixels is used")
+    icp_iterations: tuple[int, ...] = param((7, 7, 7, 10), "OpenCV ICP odometry: iterations per pyramid level (finest first)")
 
 
 @dataclass(frozen=True)

@@ -109,7 +109,8 @@ class DenseTracker:
         depth_prev = self._last_depth[0]
         T_world_prev = self._T_world_last_tracked(T_world_last_good)
         T_guess = inv_se3(T_world_prev) @ T_world_cam
-        agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess)
+        agree0 = depth_agreement(np.nan_to_num(depth_prev), np.nan_to_num(frame.depth), self.K, T_guess,
+                                 self.cfg.dense.agreement_step, self.cfg.dense.agreement_tolerance_m)
         guesses = [T_guess]
         if agree0 < self.cfg.dense.doubtful_agreement:  # a doubtful feature pose: also from the prediction and from no motion
             guesses += [inv_se3(T_world_prev) @ motion_model.predict(), np.eye(4)]
@@ -133,7 +134,12 @@ class DenseTracker:
         for T_guess in guesses:
             T, agree = align_depth(depth_prev, frame.depth, self.K, T_guess, cfg.depth.min_depth,
                                    min(cfg.depth.max_depth, cfg.dense.max_depth), gray_prev=grays[0], gray_cur=grays[1],
-                                   downsample=cfg.dense.refine_downsample if photometric else 1)
+                                   downsample=cfg.dense.refine_downsample if photometric else 1,
+                                   min_agreement=cfg.dense.min_agreement, max_step_deg=cfg.dense.max_step_deg,
+                                   max_step_m=cfg.dense.max_step_m, max_depth_diff=cfg.dense.icp_max_depth_diff,
+                                   max_points_part=cfg.dense.icp_max_points_part, iterations=cfg.dense.icp_iterations,
+                                   agreement_step=cfg.dense.agreement_step,
+                                   agreement_tolerance_m=cfg.dense.agreement_tolerance_m)
             if T is not None and (best is None or agree > best_agree):
                 best, best_agree = T, agree
             elif best is None:

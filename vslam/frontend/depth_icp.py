@@ -24,7 +24,7 @@ import logging
 
 import numpy as np
 
-from vslam.geometry.lie import inv_T
+from vslam.geometry.lie import inv_se3
 
 log = logging.getLogger(__name__)
 
@@ -63,14 +63,18 @@ def depth_agreement(depth_a: np.ndarray, depth_b: np.ndarray, K: np.ndarray, T_a
 def align_depth(depth_prev: np.ndarray, depth_cur: np.ndarray, K: np.ndarray, T_prev_cur_guess: np.ndarray,
                 min_depth: float = 0.1, max_depth: float = 6.0, min_agreement: float = 0.6,
                 max_step_deg: float = 30.0, max_step_m: float = 0.5, gray_prev: np.ndarray | None = None,
-                gray_cur: np.ndarray | None = None, downsample: int = 1) -> tuple[np.ndarray | None, float]:
+                gray_cur: np.ndarray | None = None, downsample: int = 1, max_depth_diff: float = 0.07,
+                max_points_part: float = 0.35, iterations: tuple[int, ...] = (7, 7, 7, 10),
+                agreement_step: int = 8, agreement_tolerance_m: float = 0.02) -> tuple[np.ndarray | None, float]:
     """``T_prev_cur`` (maps current-camera points into the previous camera) from two depth images
     (float metres, 0 or NaN = invalid; with both uint8 grey images also the photometric error),
     or ``(None, agreement)`` when ICP fails, moves more than
     ``max_step_deg`` / ``max_step_m``, or the aligned depths agree on less than ``min_agreement``
     (:func:`depth_agreement`, always on the full-resolution depths). ``downsample`` > 1 aligns
     images reduced by that factor (depth: every n-th pixel, no blending across depth edges; grey:
-    blurred, same pixels; K scaled), about ``downsample ** 2`` times faster. Needs ``cv2.rgbd``
+    blurred, same pixels; K scaled), about ``downsample ** 2`` times faster. ``max_depth_diff``,
+    ``max_points_part``, ``iterations``: OpenCV's ICP odometry settings; ``agreement_*``: those of
+    :func:`depth_agreement` (all ``frontend.dense.*`` in the pipeline). Needs ``cv2.rgbd``
     (opencv-contrib); without it always None."""
     try:
         import cv2
@@ -91,7 +95,7 @@ def align_depth(depth_prev: np.ndarray, depth_cur: np.ndarray, K: np.ndarray, T_
         K = K.copy()
         K[:2] /= f  # pixel (f i) of the full image is pixel i: centres keep u = f u'
     make = rgbd.RgbdICPOdometry_create if photometric else rgbd.ICPOdometry_create
-    odo = make(K, float(min_depth), float(max_depth), 0.07, 0.35, [7, 7, 7, 10])
+    odo = make(K, float(min_depth), float(max_depth), float(max_depth_diff), float(max_points_part), list(iterations))
     odo.setMaxTranslation(float(max_step_m))
     odo.setMaxRotation(float(max_step_deg))
 
@@ -102,11 +106,12 @@ def align_depth(depth_prev: np.ndarray, depth_cur: np.ndarray, K: np.ndarray, T_
 
     # OpenCV's Rt maps source (previous) points into the destination (current) frame: T_cur_prev
     ok, T_cur_prev = odo.compute2(frame(depth_prev, gray_prev if photometric else None),
-                                  frame(depth_cur, gray_cur if photometric else None), None, inv_T(T_prev_cur_guess))
+                                  frame(depth_cur, gray_cur if photometric else None), None, inv_se3(T_prev_cur_guess))
     if not ok or T_cur_prev is None or not np.all(np.isfinite(T_cur_prev)):
         return None, 0.0
-    T_prev_cur = inv_T(np.asarray(T_cur_prev, float))
-    agree = depth_agreement(np.nan_to_num(full_prev), np.nan_to_num(full_cur), K_full, T_prev_cur)
+    T_prev_cur = inv_se3(np.asarray(T_cur_prev, float))
+    agree = depth_agreement(np.nan_to_num(full_prev), np.nan_to_num(full_cur), K_full, T_prev_cur, agreement_step,
+                            agreement_tolerance_m)
     if agree < min_agreement:
         log.debug("depth ICP refused: %.2f of the depths agree", agree)
         return None, agree

@@ -16,7 +16,7 @@ import numpy as np
 from vslam.frontend.config import FrontendConfig
 from vslam.frontend.observation import Observation
 from vslam.geometry.epipolar import essential_pose
-from vslam.geometry.lie import make_T
+from vslam.geometry.lie import inv_se3, make_T
 from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
 
 log = logging.getLogger(__name__)
@@ -65,27 +65,27 @@ class MonoInitializer:
             return None
         x1 = self.ref.uv_undist[ref_idx]
         x2 = cur.uv_undist[cur_idx]
-        R, t, mask, status = essential_pose(x1, x2, self.K, cfg.tracking.essential_px * 2.0, cfg.init.rotation_parallax_deg)
-        if status != "ok" or mask.sum() < cfg.init.min_matches * 0.6:
+        R, t, mask, status = essential_pose(x1, x2, self.K, cfg.tracking.essential_px * cfg.init.essential_threshold_factor, cfg.init.rotation_parallax_deg)
+        if status != "ok" or mask.sum() < cfg.init.min_matches * cfg.init.min_inlier_fraction:
             log.debug("init: status %s, %d inliers", status, int(mask.sum()))
             return None
         T_cur_ref = make_T(R, t)
         X = triangulate_dlt(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
         e1, z1 = reprojection_error_depth(np.eye(4), self.K, X, x1[mask])
         e2, z2 = reprojection_error_depth(T_cur_ref, self.K, X, x2[mask])
-        T_ref_cur = np.linalg.inv(T_cur_ref)
+        T_ref_cur = inv_se3(T_cur_ref)
         par = ray_parallax_deg(np.eye(4), T_ref_cur, X)
-        thr = 4.0 * cfg.tracking.essential_px
-        good = (z1 > 0) & (z2 > 0) & (e1 < thr) & (e2 < thr) & (par > 0.2) & np.all(np.isfinite(X), axis=1)
-        if good.sum() < cfg.init.min_matches * 0.5:
+        thr = cfg.init.reproj_threshold_factor * cfg.tracking.essential_px
+        good = (z1 > 0) & (z2 > 0) & (e1 < thr) & (e2 < thr) & (par > cfg.init.min_point_parallax_deg) & np.all(np.isfinite(X), axis=1)
+        if good.sum() < cfg.init.min_matches * cfg.init.min_point_fraction:
             return None
-        # ORB-SLAM's test: the 50th largest parallax must exceed the threshold
+        # ORB-SLAM's test: the 50th largest parallax (init.parallax_rank) must exceed the threshold
         par_sorted = np.sort(par[good])[::-1]
-        med_par = float(par_sorted[min(50, len(par_sorted) - 1)])
+        med_par = float(par_sorted[min(cfg.init.parallax_rank, len(par_sorted) - 1)])
         if med_par < cfg.init.min_parallax_deg:
             return None
         scale = 1.0 / float(np.median(z1[good]))
         T_cur_ref[:3, 3] *= scale
         idx = np.flatnonzero(mask)[good]
-        log.info("monocular init: %d points, 50th largest parallax %.2f deg", len(idx), med_par)
+        log.info("monocular init: %d points, parallax %.2f deg (rank %d)", len(idx), med_par, cfg.init.parallax_rank)
         return TwoViewInit(T_cur_ref, ref_idx[idx], cur_idx[idx], X[good] * scale, med_par)

@@ -22,16 +22,16 @@ def pose_3d2d(cfg: FrontendConfig, K: np.ndarray, bf: float, sensor: str, Xw: np
     if T_cw_guess is not None and (refine_only or tr.pose_from_prediction):
         # matches were gated around the prediction: robust pose optimization straight from it
         # (ORB-SLAM's TrackWithMotionModel); RANSAC only when that explains too few matches
-        T_cw, inl = refine_pose(T_cw_guess, Xw, uv, K, sigma, u_right, bf, rounds=2 if refine_only else 3)
+        T_cw, inl = refine_pose(T_cw_guess, Xw, uv, K, sigma, u_right, bf,
+                                rounds=tr.refine_rounds_prediction if refine_only else tr.refine_rounds)
         if refine_only or inl.sum() >= max(tr.min_inliers, tr.prediction_min_inlier_ratio * len(Xw)):
             return T_cw, inl
-    # with depth, a first-pass pose only places the second association pass (gate 4.5 px),
-    # which a refinement with the depth residuals follows: one LM round on its inliers is
-    # enough there (monocular KITTI 07 odometry drifts more with it: 1.16 vs < 1 m)
+    # with depth, a first-pass pose only places the second association pass (tracking.pnp_refine_rounds_first_pass)
     T_cw, m = pnp_ransac(Xw, uv, K, T_cw_guess, tr.pnp_reproj_px, tr.pnp_iterations,
-                         refine_rounds=1 if not final and sensor != "mono" else 2)
+                         refine_rounds=tr.pnp_refine_rounds_first_pass if not final and sensor != "mono"
+                         else tr.pnp_refine_rounds)
     if T_cw is None:
         return None, np.zeros(len(Xw), bool)
     if not final:  # a refinement with all residuals follows the second association pass
         return T_cw, m
-    return refine_pose(T_cw, Xw, uv, K, sigma, u_right, bf)
+    return refine_pose(T_cw, Xw, uv, K, sigma, u_right, bf, rounds=tr.refine_rounds)

@@ -1,11 +1,12 @@
 """3D-3D motion: the camera pose from keypoint depths aligned onto their map points
-(RANSAC + weighted Kabsch/Umeyama, :func:`vslam.geometry.align.align_ransac`)."""
+(RANSAC + Umeyama, :func:`vslam.geometry.align.align_points`)."""
 from __future__ import annotations
 
 import numpy as np
 
 from vslam.frontend.config import FrontendConfig
-from vslam.geometry.align import align_ransac
+from vslam.errors import GeometryError
+from vslam.geometry.align import align_points
 from vslam.geometry.camera import PinholeCamera
 from vslam.geometry.lie import inv_se3
 
@@ -26,9 +27,12 @@ def pose_3d3d(cfg: FrontendConfig, camera: PinholeCamera, sensor: str, bf: float
         thr = np.maximum(tr.align_inlier_m, tr.align_stereo_disparity_px * z[has] ** 2 / bf)
     else:
         thr = tr.align_inlier_m * np.maximum(1.0, z[has] ** 2)
-    T_wc, m = align_ransac(Xc, Xw[has], thr, iterations=tr.align_iterations if not refine_only else tr.align_refine_iterations,
-                           rng=rng)
-    if T_wc is None:
+    try:
+        T_wc, m = align_points(Xc, Xw[has], threshold=thr,
+                               max_iters=tr.align_iterations if not refine_only else tr.align_refine_iterations, seed=rng)
+    except GeometryError:
+        return None, inl
+    if m.sum() < tr.min_inliers:
         return None, inl
     inl[np.flatnonzero(has)[m]] = True
     return inv_se3(T_wc), inl

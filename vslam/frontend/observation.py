@@ -95,6 +95,7 @@ def klt_track(
 def stereo_by_flow(
     left: np.ndarray, right: np.ndarray, uv: np.ndarray, camera: PinholeCamera,
     max_depth_baselines: float = 60.0, max_dy: float = 1.5, min_depth: float = 0.1, init_disparity: np.ndarray | None = None,
+    window: int = 11, levels: int = 4, max_iter: int = 5, eps: float = 0.1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth of left keypoints in a rectified pair; ``z = fx b / (u_l - u_r)``.
 
@@ -104,6 +105,7 @@ def stereo_by_flow(
     oriented texture the vertical shift it also solves for absorbs part of the disparity, which
     made KITTI 06 depths 0.3-0.6 % too large (``tests/frontend/test_stereo_by_flow.py``).
 
+    ``window`` / ``levels`` / ``max_iter`` / ``eps``: that 2-D LK (``frontend.depth.stereo_flow_*``).
     Returns ``(depth (N,) NaN where unmatched, u_right (N,))``.
     """
     from vslam.features.stereo import refine_disparity_row
@@ -119,7 +121,8 @@ def stereo_by_flow(
         init[:, 0] -= d0
     # one way only, few iterations: the row refinement below sets the final value, and the row
     # constraint rejects the failures a backward check would
-    uvr, ok = klt_track(left, right, uv, init_uv=init, window=11, levels=4, fb_threshold=0.0, max_iter=5, eps=0.1)
+    uvr, ok = klt_track(left, right, uv, init_uv=init, window=window, levels=levels, fb_threshold=0.0, max_iter=max_iter,
+                        eps=eps)
     min_disp = camera.fx / max_depth_baselines
     ok &= (np.abs(uvr[:, 1] - uv[:, 1]) < max_dy) & (uv[:, 0] - uvr[:, 0] > min_disp)
     disp, ok_row = refine_disparity_row(left, right, uv, np.where(ok, uv[:, 0] - uvr[:, 0], np.nan))

@@ -128,7 +128,8 @@ class Observer:
                 d0 = obs.uv[:, 0] - obs.u_right  # last frame's disparity as the initial guess
             obs.depth, obs.u_right = stereo_by_flow(
                 gray, right, obs.uv, self.camera, cfg.depth.stereo_max_depth_baselines, cfg.depth.stereo_max_dy,
-                cfg.depth.min_depth, d0,
+                cfg.depth.min_depth, d0, cfg.depth.stereo_flow_window, cfg.depth.stereo_flow_levels,
+                cfg.depth.stereo_flow_max_iter, cfg.depth.stereo_flow_eps,
             )
         else:
             obs.depth = np.full(n, np.nan)

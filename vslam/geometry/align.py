@@ -7,6 +7,9 @@ point in one array operation; the best is re-fitted on its inliers with
 the hypotheses are ranked by their median residual instead (LMedS, Rousseeuw 1984) and the
 inlier threshold is derived from that median.
 
+:func:`align_points` is the one 3D-3D RANSAC: loop verification (one threshold, LMedS for map
+merging) and the tracker's ``motion=3d3d`` (per-point thresholds growing with depth) use it.
+
 Failure contract: :func:`align_points` raises :class:`vslam.errors.GeometryError` (fewer than
 3 points, NaN/inf, all points collinear, no hypothesis with 3 inliers); it never returns ``None``.
 """
@@ -56,19 +59,20 @@ def _sq_residuals(R, t, s, src, dst):
 
 
 def align_points(
-    src: np.ndarray, dst: np.ndarray, with_scale: bool = False, threshold: float | None = None,
-    confidence: float = 0.999, max_iters: int = 1000, batch: int = 64, seed: int = 0,
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = False, threshold: float | np.ndarray | None = None,
+    confidence: float = 0.999, max_iters: int = 1000, batch: int = 64, seed: int | np.random.Generator = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``T`` (4x4) with ``dst ~ s R src + t`` and the inlier mask, robust to outliers.
 
     Args:
         src, dst: ``(N, 3)`` corresponding points, ``N >= 3``, not all collinear.
         with_scale: estimate a similarity (scale folded into ``T[:3, :3] = s R``); else SE(3).
-        threshold: inlier distance in ``dst`` units. ``None``: LMedS ranking, then
+        threshold: inlier distance in ``dst`` units, one for all pairs or ``(N,)`` per pair (the
+            tracker's depth-dependent noise). ``None``: LMedS ranking, then
             ``threshold = 2.5 * median residual`` of the best hypothesis (needs < 50 % outliers).
         confidence: RANSAC stops once ``1 - (1 - w^3)^k >= confidence`` for the inlier ratio ``w``.
         max_iters: cap on the number of 3-point hypotheses (LMedS draws 128). batch: hypotheses per vectorized step.
-        seed: random generator seed (deterministic by default).
+        seed: random generator seed (deterministic by default), or a generator to draw from.
 
     Returns:
         ``(T (4, 4), inlier_mask (N,) bool)``. With exactly 3 points no RANSAC is run.
@@ -128,8 +132,10 @@ def _check_align_inputs(src, dst, threshold: float | None) -> tuple[np.ndarray, 
         raise GeometryError(f"align_points needs at least 3 point pairs, got {n}")
     if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
         raise GeometryError("align_points got NaN or inf coordinates; drop those pairs first")
-    if threshold is not None and not (np.isfinite(threshold) and threshold > 0):
-        raise GeometryError(f"align_points: threshold must be a positive number, got {threshold}")
+    if threshold is not None:
+        thr = np.asarray(threshold, dtype=float)
+        if thr.ndim > 1 or (thr.ndim == 1 and len(thr) != n) or not (np.all(np.isfinite(thr)) and np.all(thr > 0)):
+            raise GeometryError(f"align_points: threshold must be a positive number or {n} of them, got {threshold}")
     return src, dst
 
 
@@ -150,50 +156,6 @@ def _refit_on_inliers(
             break
         mask = new
     return make_T(R, t, s), mask
-
-
-def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched rigid alignment ``dst ~ R src + t`` (Arun et al. 1987 / Umeyama 1991 without scale)
-    of ``(H, m, 3)`` point sets; returns ``R (H, 3, 3), t (H, 3)``."""
-    ms, md = src.mean(axis=1), dst.mean(axis=1)
-    C = np.einsum("hni,hnj->hij", dst - md[:, None], src - ms[:, None])
-    U, _, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(U @ Vt))
-    S = np.tile(np.eye(3), (len(src), 1, 1))
-    S[:, 2, 2] = d
-    R = U @ S @ Vt
-    t = md - np.einsum("hij,hj->hi", R, ms)
-    return R, t
-
-
-def align_ransac(
-    X_src: np.ndarray, X_dst: np.ndarray, threshold: np.ndarray | float, iterations: int = 200,
-    rng: np.random.Generator | None = None,
-) -> tuple[np.ndarray | None, np.ndarray]:
-    """3D-3D RANSAC (3-point minimal sets, all hypotheses scored at once), then least squares on
-    the inliers, re-scored twice. Returns ``(T_dst_src or None, inlier mask)``."""
-    n = len(X_src)
-    if n < 6:
-        return None, np.zeros(n, bool)
-    rng = rng or np.random.default_rng(0)
-    thr2 = np.broadcast_to(np.asarray(threshold, float) ** 2, (n,))
-    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(iterations)]) if n < 50 else \
-        rng.integers(0, n, size=(iterations, 3))
-    R, t = kabsch_batch(X_src[idx], X_dst[idx])
-    pred = np.matmul(X_src[None], R.transpose(0, 2, 1)) + t[:, None, :]
-    err2 = ((pred - X_dst[None]) ** 2).sum(axis=2)
-    score = (err2 < thr2[None]).sum(axis=1)
-    best = int(np.argmax(score))
-    mask = err2[best] < thr2
-    T = None
-    for _ in range(3):
-        if mask.sum() < 6:
-            return None, mask
-        Rb, tb = kabsch_batch(X_src[mask][None], X_dst[mask][None])
-        T = make_T(Rb[0], tb[0])
-        e2 = ((X_src @ T[:3, :3].T + T[:3, 3] - X_dst) ** 2).sum(axis=1)
-        mask = e2 < thr2
-    return T, mask
 
 
 def _ransac_iterations(w: float, confidence: float, max_iters: int) -> int:

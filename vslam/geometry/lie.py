@@ -116,9 +116,9 @@ def sim3_decompose(S: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def inv_T(T: np.ndarray) -> np.ndarray:
-    """Inverse of an SE(3) or Sim(3) 4x4 (``(N, 4, 4)`` batches too): ``[[A^-1, -A^-1 t], [0, 1]]``.
+    """Inverse of a Sim(3) 4x4 (``(N, 4, 4)`` batches too): ``[[A^-1, -A^-1 t], [0, 1]]``.
 
-    For SE(3) ``A^-1 = R^T``; for Sim(3) ``(sR)^-1 = R^T / s``, computed as ``A^T / s^2``.
+    ``(sR)^-1 = R^T / s``, computed as ``A^T / s^2``; rigid transforms take :func:`inv_se3` (no scale).
     """
     T = np.asarray(T, dtype=float)
     A = T[..., :3, :3]
@@ -132,16 +132,23 @@ def inv_T(T: np.ndarray) -> np.ndarray:
 
 
 def inv_se3(T: np.ndarray) -> np.ndarray:
-    """Inverse of one rigid 4x4 ``[[R, t], [0, 1]]``: ``[[R^T, -R^T t], [0, 1]]``, the fast per-frame
-    form (no Sim(3) scale, no batch); :func:`inv_T` is the general one."""
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    """Inverse of a rigid 4x4 ``[[R, t], [0, 1]]`` (or a ``(..., 4, 4)`` batch): ``[[R^T, -R^T t], [0, 1]]``.
+
+    The fast form for SE(3) (no Sim(3) scale); one 4x4 takes the per-frame path. :func:`inv_T`
+    also inverts Sim(3).
+    """
+    T = np.asarray(T, dtype=float)
+    if T.ndim == 2:
+        out = np.eye(4)
+        out[:3, :3] = T[:3, :3].T
+        out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+        return out
+    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = R_t
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R_t, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
     return out
-
-
-se3_inverse = inv_T
-sim3_inverse = inv_T
 
 
 def compose(*Ts: np.ndarray) -> np.ndarray:
@@ -263,12 +270,14 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 def slerp_rotation(R0: np.ndarray, R1: np.ndarray, alpha: float | np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation ``R0 exp(alpha log(R0^T R1))`` (Shoemake 1985).
+    """Spherical linear interpolation ``R0 exp(alpha log(R0^T R1))`` (Shoemake 1985): the one
+    rotation interpolation (trajectories, ground truth at image times, frame corrections).
 
-    ``alpha`` may be a scalar (-> ``(3, 3)``) or an array ``(M,)`` (-> ``(M, 3, 3)``).
+    One pair ``(3, 3)`` with ``alpha`` a scalar (-> ``(3, 3)``) or ``(M,)`` (-> ``(M, 3, 3)``), or
+    ``M`` pairs ``(M, 3, 3)`` with ``alpha (M,)``.
     """
     R0 = np.asarray(R0, dtype=float)
-    w = so3_log(R0.T @ np.asarray(R1, dtype=float))
+    w = so3_log(np.swapaxes(R0, -1, -2) @ np.asarray(R1, dtype=float))
     a = np.asarray(alpha, dtype=float)
     return R0 @ so3_exp(a[..., None] * w)
 
@@ -306,10 +315,8 @@ def interpolate_trajectory(
         raise GeometryError(f"query times outside the trajectory span [{ts[0]}, {ts[-1]}]")
     i = np.clip(np.searchsorted(ts, q, side="right") - 1, 0, len(ts) - 2)
     a = (q - ts[i]) / (ts[i + 1] - ts[i])
-    R0, R1 = Ts[i, :3, :3], Ts[i + 1, :3, :3]
-    w = so3_log(np.swapaxes(R0, 1, 2) @ R1)
     out = np.zeros((len(q), 4, 4))
-    out[:, :3, :3] = R0 @ so3_exp(a[:, None] * w)
+    out[:, :3, :3] = slerp_rotation(Ts[i, :3, :3], Ts[i + 1, :3, :3], a)
     out[:, :3, 3] = (1 - a)[:, None] * Ts[i, :3, 3] + a[:, None] * Ts[i + 1, :3, 3]
     out[:, 3, 3] = 1.0
     return out

@@ -16,9 +16,9 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
    map points (monocular, where scale drifts), refined on its inliers' reprojection errors
    (``closing.refine_ransac_pose``); guided matching by projection and robust pose
    refinement give the final inliers, at least ``closing.min_inliers`` to accept; or (RGB-D) at
-   least ``closing.confirm_min_inliers`` RANSAC inliers and a connected keyframe of the query,
+   least ``closing.confirm.min_inliers`` RANSAC inliers and a connected keyframe of the query,
    verified against the same candidates, agreeing on the correction, and at least
-   ``closing.confirm_min_map_inliers`` map-point inliers (:meth:`LoopCloser._confirmed`).
+   ``closing.confirm.min_map_inliers`` map-point inliers (:meth:`LoopCloser._confirmed`).
 3. **Correct.** The matched duplicate points are fused (the candidate side's point survives, the
    query keyframes' observations are remapped), and the candidate's points are projected into the
    query's covisible keyframes and fused too (ORB-SLAM's SearchAndFuse). The essential graph
@@ -226,7 +226,7 @@ class LoopCloser:
                 return None
             cand = self.detector.detect(kf_id, bow, covisible_ids=exclude)
             single = False
-            if cand is None and cc.confirm_min_keyframes > 0 and self.sensor == "rgbd":
+            if cand is None and cc.confirm.min_keyframes > 0 and self.sensor == "rgbd":
                 cand = self.detector.last_best  # single detection: needs covisible confirmation (_verify)
                 single = cand is not None
             if cand is None:
@@ -379,10 +379,10 @@ class LoopCloser:
 
     def _confirmed(self, kf: KeyFrame, match_id: int, ver: Verified) -> bool:
         """Weak-but-real loops of sparse keyframe sequences (RGB-D): accept a verification below
-        ``min_inliers`` when it has at least ``confirm_min_inliers`` inliers (RANSAC, with the
-        keypoints with depth, or after refinement) and at least ``confirm_min_keyframes`` of the
+        ``min_inliers`` when it has at least ``confirm.min_inliers`` inliers (RANSAC, with the
+        keypoints with depth, or after refinement) and at least ``confirm.min_keyframes`` of the
         query's connected keyframes, verified independently against the same candidate group, agree on
-        the query's corrected pose within ``confirm_max_m`` / ``confirm_max_deg``. After ORB-SLAM3's
+        the query's corrected pose within ``confirm.max_m`` / ``confirm.max_deg``. After ORB-SLAM3's
         ``DetectCommonRegionsFromBoW`` (Campos et al., T-RO 2021, sec. VI-A): a candidate is confirmed
         by the query's covisible keyframes instead of waiting for later keyframes, which a sequence
         of few, wide-baseline keyframes may never provide. Connected keyframes have nearly the same
@@ -391,26 +391,26 @@ class LoopCloser:
         squared (RGB-D noise), so on far outdoor points (KITTI, median depth ~15 m) it is metres wide
         and RANSAC counts 100+ "inliers" for wrong poses; only the agreement test rejected those."""
         cc = self.config.closing
-        if cc.confirm_min_keyframes <= 0 or self.sensor != "rgbd":
+        if cc.confirm.min_keyframes <= 0 or self.sensor != "rgbd":
             return False
-        if max(ver.n_inliers, ver.n_ransac) < cc.confirm_min_inliers or ver.n_inliers < cc.confirm_min_map_inliers:
+        if max(ver.n_inliers, ver.n_ransac) < cc.confirm.min_inliers or ver.n_inliers < cc.confirm.min_map_inliers:
             return False
         T_cam_world_q = inv_se3(ver.T_world_cam)  # the query's corrected pose
         agree = 0
-        for k in self._connected(kf.id)[: cc.confirm_neighbours]:
+        for k in self._connected(kf.id)[: cc.confirm.neighbours]:
             other = self.map.keyframes.get(k)
             if other is None or other.bad or other.descriptors is None or k == match_id:
                 continue
             v = self._verify_group(other, match_id)
-            if v is None or max(v.n_inliers, v.n_ransac) < cc.confirm_min_inliers:
+            if v is None or max(v.n_inliers, v.n_ransac) < cc.confirm.min_inliers:
                 continue
             # the query moved by the neighbour's correction vs by its own
             D = T_cam_world_q @ v.T_world_cam @ other.T_cam_world @ kf.T_world_cam
-            if np.linalg.norm(D[:3, 3]) <= cc.confirm_max_m and _rot_deg(D[:3, :3]) <= cc.confirm_max_deg:
+            if np.linalg.norm(D[:3, 3]) <= cc.confirm.max_m and _rot_deg(D[:3, :3]) <= cc.confirm.max_deg:
                 agree += 1
             log.debug("loop %d -> %d: keyframe %d corrects %.3f m / %.2f deg apart (%d/%d inliers)", kf.id,
                       match_id, k, np.linalg.norm(D[:3, 3]), _rot_deg(D[:3, :3]), v.n_ransac, v.n_inliers)
-            if agree >= cc.confirm_min_keyframes:
+            if agree >= cc.confirm.min_keyframes:
                 log.info("loop candidate %d -> %d (%d/%d inliers) confirmed by %d connected keyframe(s)", kf.id,
                          match_id, ver.n_ransac, ver.n_inliers, agree)
                 return True

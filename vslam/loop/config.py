@@ -54,6 +54,42 @@ class LoopDetectorConfig:
 
 
 @dataclass(frozen=True)
+class LoopFuseConfig:
+    """Fusing a verified loop's candidate points into the query's neighbours (ORB-SLAM's SearchAndFuse)."""
+
+    radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels")
+    max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching")
+    ratio: float = param(0.9, "ratio test of that fusion's guided matching")
+
+    def __post_init__(self) -> None:
+        if not self.radius_px > 0:
+            raise ConfigError(f"loop closing fuse.radius_px={self.radius_px}: must be > 0")
+
+
+@dataclass(frozen=True)
+class ConfirmConfig:
+    """ORB-SLAM3's covisibility check (:meth:`vslam.loop.closing.LoopCloser._confirmed`): RGB-D loops below
+    ``min_inliers`` (and single detections not yet temporally consistent) are accepted when they have
+    ``confirm.min_inliers`` inliers and ``confirm.min_keyframes`` of the query's connected keyframes,
+    verified against the same candidate group with as many inliers, agree on the correction within
+    ``max_m`` / ``max_deg``."""
+
+    min_keyframes: int = param(1, "connected keyframes that must confirm a weak RGB-D loop (0: rule off)")
+    min_inliers: int = param(15, "inliers a weak RGB-D loop and each confirming keyframe need")
+    max_m: float = param(0.2, "confirming corrections agree within this translation, metres")
+    max_deg: float = param(4.0, "confirming corrections agree within this rotation, degrees")
+    neighbours: int = param(3, "the query's strongest connected keyframes tried for that confirmation")
+    min_map_inliers: int = param(6, "a confirmed loop also needs this many map-point inliers after refinement (0: RANSAC-only ok)")
+
+    def __post_init__(self) -> None:
+        if self.min_keyframes < 0 or self.neighbours < 0 or self.min_map_inliers < 0:
+            raise ConfigError("loop closing confirm.min_keyframes, confirm.neighbours and confirm.min_map_inliers must be >= 0")
+        for name in ("max_m", "max_deg"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"loop closing confirm.{name}={getattr(self, name)}: must be > 0")
+
+
+@dataclass(frozen=True)
 class ClosingConfig:
     """Geometric verification and correction of a loop candidate (ORB-SLAM, Mur-Artal et al. 2015,
     sec. VII-B/C/D; ORB-SLAM2 sec. VI-D)."""
@@ -76,9 +112,6 @@ class ClosingConfig:
     min_keyframes_between: int = param(10, "no loop is detected within this many keyframes after the last one")
     # Weaker covisibility links (old points re-observed on a revisit) are loop candidates.
     connected_min_weight: int = param(15, "keyframes sharing this many points with the query are connected: excluded and moved with it (ORB-SLAM: 15)")
-    fuse_radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels")
-    fuse_max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching")
-    fuse_ratio: float = param(0.9, "ratio test of that fusion's guided matching")
     max_tries: int = param(3, "keyframes of a consistent candidate group verified at most (best match first)")
     guided_max_descriptor_distance: float = param(64.0, "Hamming bound of the verification's guided matching")
     guided_ratio: float = param(0.9, "ratio test of the verification's guided matching")
@@ -86,35 +119,24 @@ class ClosingConfig:
     global_ba: bool = param(True, "run a global bundle adjustment after the pose-graph correction")
     match_keypoints_with_depth: bool = param(True, "RGB-D/stereo: the candidate group's keypoints with depth but no map point join the RANSAC")
     depth_keypoint_neighbours: int = param(10, "strongest covisible keyframes of the candidate whose depth keypoints join (one matching each)")
-    # ORB-SLAM3's covisibility check (vslam.loop.closing.LoopCloser._confirmed): RGB-D loops below min_inliers
-    # (and single detections not yet temporally consistent) are accepted when they have confirm_min_inliers
-    # inliers and confirm_min_keyframes of the query's connected keyframes, verified against the same
-    # candidate group with as many inliers, agree on the correction within confirm_max_m / confirm_max_deg.
-    confirm_min_keyframes: int = param(1, "connected keyframes that must confirm a weak RGB-D loop (0: rule off)")
-    confirm_min_inliers: int = param(15, "inliers a weak RGB-D loop and each confirming keyframe need")
-    confirm_max_m: float = param(0.2, "confirming corrections agree within this translation, metres")
-    confirm_max_deg: float = param(4.0, "confirming corrections agree within this rotation, degrees")
-    confirm_neighbours: int = param(3, "the query's strongest connected keyframes tried for that confirmation")
     refine_ransac_pose: bool = param(True, "refine the 3D-3D RANSAC pose on its inliers' reprojection errors before guided matching")
-    confirm_min_map_inliers: int = param(6, "a confirmed loop also needs this many map-point inliers after refinement (0: RANSAC-only ok)")
     # With ~10 loop observations against thousands along the trajectory the global BA re-opens the loop: TUM
     # fr3/cabinet (loop 57 -> 2, 10 inliers), error of the last keyframe relative to keyframe 2 (GT) 15 mm after
     # the essential graph, 106 mm after the global BA (74 mm with no loop), ATE 0.032 -> 0.050 m (the same
     # 0.050 without the essential graph first: it is the BA's optimum, not its initialization); u_right
     # residual 0.026 -> 0.036.
     global_ba_weak_loops: bool = param(False, "run global_ba also after a loop accepted by confirmation (off: keep the essential graph's correction)")
+    fuse: LoopFuseConfig = section(LoopFuseConfig, "fusing the candidate's points into the query's neighbours", ("fuse_",))
+    confirm: ConfirmConfig = section(ConfirmConfig, "confirmation of weak RGB-D loops by connected keyframes", ("confirm_",))
 
     def __post_init__(self) -> None:
         if self.min_inliers < 6 or self.min_inliers_mono < 6:
             raise ConfigError(f"loop closing min_inliers={self.min_inliers}/{self.min_inliers_mono}: must be >= 6")
         if not 0.0 < self.match_ratio <= 1.0:
             raise ConfigError(f"loop closing match_ratio={self.match_ratio}: must be in (0, 1]")
-        if self.confirm_min_keyframes < 0 or self.confirm_neighbours < 0 or self.depth_keypoint_neighbours < 0 \
-                or self.confirm_min_map_inliers < 0:
-            raise ConfigError("loop closing confirm_min_keyframes, confirm_neighbours, depth_keypoint_neighbours and "
-                              "confirm_min_map_inliers must be >= 0")
-        for name in ("align_threshold_m", "align_threshold_rel", "search_radius_px", "fuse_radius_px",
-                     "confirm_max_m", "confirm_max_deg"):
+        if self.depth_keypoint_neighbours < 0:
+            raise ConfigError("loop closing depth_keypoint_neighbours must be >= 0")
+        for name in ("align_threshold_m", "align_threshold_rel", "search_radius_px"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"loop closing {name}={getattr(self, name)}: must be > 0")
 
@@ -128,6 +150,7 @@ class RelocalizationConfig:
     match_ratio: float = param(0.8, "Lowe ratio of the frame-to-candidate descriptor matching")
     max_descriptor_distance: float = param(64.0, "Hamming bound of the frame-to-candidate descriptor matching")
     min_matches: int = param(15, "matches needed to try PnP")
+    candidate_covisible: int = param(10, "strongest covisible keyframes of a candidate whose points join its matching")
     reproj_px: float = param(4.0, "PnP RANSAC inlier threshold, pixels")
     search_radius_px: float = param(8.0, "guided matching radius at the PnP pose, pixels")
     min_inliers: int = param(40, "inliers after refinement needed to accept the pose (ORB-SLAM: 50)")

@@ -72,7 +72,7 @@ def write_back_corrections(map_: Map, segment: int, nodes: list[int], T_before: 
     correction of the newest older node. Points move with their reference (first) keyframe
     (:func:`correct_points`); the poses keep their rotation, the Sim(3) scale is divided out.
     """
-    C = S_after @ np.linalg.inv(T_before)  # per-node correction (Sim(3) for monocular)
+    C = S_after @ inv_se3(T_before)  # per-node correction (Sim(3) for monocular)
     now = sorted(k for k, f in map_.keyframes.items() if f.segment == segment)
     snap = np.asarray(nodes)
     node_of = np.searchsorted(snap, now, side="right") - 1  # the node itself, else the newest older one

@@ -41,7 +41,7 @@ def fuse_loop_points(map_: Map, camera: PinholeCamera, sensor: str, cc: ClosingC
         if len(vis) == 0:
             continue
         m, kp, _ = guided_match(proj, store.descriptor[vis], other.uv_undist, other.descriptors,
-                                cc.fuse_radius_px, True, cc.fuse_max_descriptor_distance, cc.fuse_ratio)
+                                cc.fuse.radius_px, True, cc.fuse.max_descriptor_distance, cc.fuse.ratio)
         n_fused += assign_observations(map_, other, kp, vis[m], remap)
     if n_fused:
         apply_remap(map_.keyframes.values(), remap)

@@ -154,7 +154,7 @@ class Relocalizer:
             return None
         self.attempts += 1
         for kf_id in self.candidates(feat.descriptors, segment):
-            ver = self._try(feat, [kf_id], 10, cfg.min_matches, kf_id)
+            ver = self._try(feat, [kf_id], cfg.candidate_covisible, cfg.min_matches, kf_id)
             if ver is not None and max(ver.n_inliers, ver.n_ransac) >= cfg.min_inliers:
                 self.successes += 1
                 log.info("relocalized against keyframe %d with %d inliers", kf_id, ver.n_inliers)

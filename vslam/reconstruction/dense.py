@@ -33,6 +33,7 @@ import numpy as np
 from vslam.datasets.frame import Frame
 from vslam.errors import GeometryError, VslamError
 from vslam.geometry.camera import PinholeCamera
+from vslam.geometry.lie import inv_se3
 from vslam.reconstruction.ply import write_mesh, write_point_cloud
 from vslam.reconstruction.stereo_depth import StereoDepthConfig, depth_from_stereo
 
@@ -280,7 +281,7 @@ class TSDFFusion:
                 depth_scale=1.0, depth_trunc=float(self.config.depth_max), convert_rgb_to_intensity=False,
             )
             # Open3D wants the extrinsic T_cam_world (world -> camera)
-            self.volume.integrate(rgbd, self._intrinsic(camera), np.linalg.inv(T_world_cam))
+            self.volume.integrate(rgbd, self._intrinsic(camera), inv_se3(T_world_cam))
         self._t_integrate += time.perf_counter() - t0
         self.n_frames += 1
 
