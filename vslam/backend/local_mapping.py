@@ -401,7 +401,9 @@ class LocalMapper:
             if not older:
                 continue
             ref = max(older)
-            D = self.map.keyframes[ref].T_world_cam @ inv_se3(before[ref])
+            # the general inverse: in parallel mode these snapshots are not always exactly rigid
+            # (inv_se3 here made the parallel cabinet run diverge; to be understood)
+            D = self.map.keyframes[ref].T_world_cam @ np.linalg.inv(before[ref])
             T_old = kf.T_world_cam.copy()
             kf.T_world_cam = D @ T_old
             ids = np.flatnonzero(store.alive[:n] & (store.first_kf[:n] == kid))

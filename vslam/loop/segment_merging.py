@@ -89,7 +89,7 @@ def _join(closer: "LoopCloser", kf: KeyFrame, match_id: int, ver, t0: float) -> 
     seam = [kf.id] + [k for k in slam_map.covisible(kf.id, cc.candidate_neighbours) if k in set(moved)]
     place = [match_id] + [k for k in slam_map.covisible(match_id, cc.candidate_neighbours) if k not in set(moved)]
     fused = fuse_seam(slam_map, [(kf.id, ver.kp_idx, ver.point_ids)], seam, place, closer.camera, closer.sensor,
-                      cc.fuse_radius_px, cc.fuse_max_descriptor_distance, cc.fuse_ratio)
+                      cc.fuse.radius_px, cc.fuse.max_descriptor_distance, cc.fuse.ratio)
     for k in sorted(set(moved) | set(place)):
         slam_map.update_covisibility(k)
     slam_map.loop_epoch += 1  # local BAs built before the move are stale
