@@ -86,7 +86,6 @@ def reconstruct_run(
         paths (str), the settings used and timings.
     """
     from vslam.datasets import KINDS, open_dataset
-    from vslam.trajectory import read_tum
 
     run_dir = Path(run_dir)
     stats = _read_stats(run_dir)
@@ -99,6 +98,39 @@ def reconstruct_run(
     if not Path(seq_path).exists():
         raise VslamError(f"{run_dir}/stats.json names the sequence {seq_path!r}, which is not available here")
     ds = open_dataset(seq_path, kind=kind, sensor=sensor)
+
+    traj, frame_idx, pose_idx, source = _poses_to_fuse(run_dir, ds, seq_path, every, max_frames)
+
+    if depth_max is None:
+        depth_max = RGBD_DEPTH_MAX if sensor == "rgbd" else default_max_depth(ds.camera)
+    if voxel_size is None:
+        voxel_size = 0.01 if sensor == "rgbd" else max(0.01, depth_max / STEREO_VOXELS_PER_RANGE)
+    config = TSDFConfig(voxel_size=voxel_size, sdf_trunc=sdf_trunc, depth_max=depth_max,
+                        depth_source="depth" if sensor == "rgbd" else "stereo",
+                        stereo=stereo if stereo is not None else StereoDepthConfig())
+    log.info("fusing %d frames of %s (%s, voxel %.3f m, depth <= %.1f m)", len(frame_idx), seq_path, source,
+             voxel_size, depth_max)
+    t0 = time.perf_counter()
+    fusion = TSDFFusion(config)
+    pairs = list(zip(frame_idx, pose_idx))
+    for i, k in (progress(pairs, total=len(pairs), desc="TSDF fusion", unit="frame") if progress else pairs):
+        fusion.integrate_frame(ds[int(i)], traj.T_world_cam[k])
+    result = fusion.extract()
+    paths = result.save(Path(output_dir) if output_dir is not None else run_dir)
+    out = result.summary()
+    out.update({
+        "mesh": str(paths["mesh"]), "dense": str(paths["dense"]), "poses_from": source,
+        "voxel_size": float(voxel_size), "sdf_trunc": config.truncation, "depth_max": float(depth_max),
+        "sensor": sensor, "total_s": round(time.perf_counter() - t0, 3),
+    })
+    return out
+
+
+
+def _poses_to_fuse(run_dir: Path, ds, seq_path: str, every: int | None, max_frames: int | None):
+    """The poses to fuse (``keyframes.txt``, or every ``every``-th pose of ``trajectory.txt``) and
+    the dataset frames they belong to: ``(trajectory, frame indices, pose indices, where from)``."""
+    from vslam.trajectory import read_tum
 
     kf_file, traj_file = run_dir / "keyframes.txt", run_dir / "trajectory.txt"
     use_kf = every is None and kf_file.is_file() and kf_file.stat().st_size > 0
@@ -124,30 +156,7 @@ def reconstruct_run(
     if max_frames is not None and len(frame_idx) > max_frames:
         keep = np.unique(np.round(np.linspace(0, len(frame_idx) - 1, max(max_frames, 1))).astype(int))
         frame_idx, pose_idx = frame_idx[keep], pose_idx[keep]
-
-    if depth_max is None:
-        depth_max = RGBD_DEPTH_MAX if sensor == "rgbd" else default_max_depth(ds.camera)
-    if voxel_size is None:
-        voxel_size = 0.01 if sensor == "rgbd" else max(0.01, depth_max / STEREO_VOXELS_PER_RANGE)
-    config = TSDFConfig(voxel_size=voxel_size, sdf_trunc=sdf_trunc, depth_max=depth_max,
-                        depth_source="depth" if sensor == "rgbd" else "stereo",
-                        stereo=stereo if stereo is not None else StereoDepthConfig())
-    log.info("fusing %d frames of %s (%s, voxel %.3f m, depth <= %.1f m)", len(frame_idx), seq_path, source,
-             voxel_size, depth_max)
-    t0 = time.perf_counter()
-    fusion = TSDFFusion(config)
-    pairs = list(zip(frame_idx, pose_idx))
-    for i, k in (progress(pairs, total=len(pairs), desc="TSDF fusion", unit="frame") if progress else pairs):
-        fusion.integrate_frame(ds[int(i)], traj.T_world_cam[k])
-    result = fusion.extract()
-    paths = result.save(Path(output_dir) if output_dir is not None else run_dir)
-    out = result.summary()
-    out.update({
-        "mesh": str(paths["mesh"]), "dense": str(paths["dense"]), "poses_from": source,
-        "voxel_size": float(voxel_size), "sdf_trunc": config.truncation, "depth_max": float(depth_max),
-        "sensor": sensor, "total_s": round(time.perf_counter() - t0, 3),
-    })
-    return out
+    return traj, frame_idx, pose_idx, source
 
 
 __all__ = ["reconstruct_run", "select_frames"]
