@@ -255,38 +255,19 @@ def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> np.ndarray
 
 # ============================================================================ weld
 def _fuse_seam(slam_map, group: list[SeamMatch], kf_offset: int, camera, sensor: str, cfg) -> int:
-    """Fuse the seam's duplicates: each match's inliers, then A's points of the matched places
-    projected into the seam keyframes of B and their covisible keyframes (A's point survives)."""
-    from vslam.geometry.lie import inv_se3
-    from vslam.map.fusion import apply_remap, assign_observations, new_remap
-    from vslam.map.matching import guided_match, project_local_points
+    """Fuse the seam's duplicates (:func:`vslam.map.segment_merge.fuse_seam`): each match's inliers,
+    then A's points of the matched places projected into the seam keyframes of B and their covisible
+    keyframes (A's point survives)."""
+    from vslam.map.segment_merge import fuse_seam
 
     cc = cfg.loop.closing
-    store = slam_map.points
-    remap = new_remap(len(store))
-    fused = 0
     b_ids = {m.b_kf + kf_offset for m in group}
-    for m in group:
-        fused += assign_observations(slam_map, slam_map.keyframes[m.b_kf + kf_offset], m.ver.kp_idx,
-                                     m.ver.point_ids, remap)
     a_group = sorted({k for m in group for k in [m.a_kf] + slam_map.covisible(m.a_kf, cc.candidate_neighbours)
                       if k < kf_offset})
-    a_pts = slam_map.local_point_ids(a_group)
     targets = sorted(b_ids | {k for b in b_ids for k in slam_map.covisible(b, cc.candidate_neighbours) if k >= kf_offset})
-    for k in targets:
-        kf = slam_map.keyframes[k]
-        if kf.bad or kf.descriptors is None or kf.descriptors.dtype != np.uint8:
-            continue
-        pts = a_pts[store.alive[a_pts]]
-        vis, proj, _ = project_local_points(store, pts, inv_se3(kf.T_world_cam), camera,
-                                            check_distance=sensor != "mono")
-        if len(vis) == 0:
-            continue
-        mi, kp, _ = guided_match(proj, store.descriptor[vis], kf.uv_undist, kf.descriptors, cc.fuse.radius_px, True,
-                                 cc.fuse.max_descriptor_distance, cc.fuse.ratio)
-        fused += assign_observations(slam_map, kf, kp, vis[mi], remap)
-    apply_remap(slam_map.keyframes.values(), remap)
-    return fused
+    matches = [(m.b_kf + kf_offset, m.ver.kp_idx, m.ver.point_ids) for m in group]
+    return fuse_seam(slam_map, matches, targets, a_group, camera, sensor, cc.fuse.radius_px,
+                     cc.fuse.max_descriptor_distance, cc.fuse.ratio)
 
 
 def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: MergeOptions | None = None,

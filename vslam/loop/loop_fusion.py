@@ -9,7 +9,7 @@ from vslam.geometry.camera import PinholeCamera
 from vslam.geometry.lie import inv_se3
 from vslam.loop.config import ClosingConfig
 from vslam.loop.verification import Verified
-from vslam.map.fusion import apply_remap, new_remap
+from vslam.map.fusion import apply_remap, assign_observations, new_remap
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.matching import guided_match, project_local_points
@@ -46,20 +46,3 @@ def fuse_loop_points(map_: Map, camera: PinholeCamera, sensor: str, cc: ClosingC
     if n_fused:
         apply_remap(map_.keyframes.values(), remap)
     return n_fused
-
-
-def assign_observations(map_: Map, kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:
-    """Keypoints ``kp`` of ``kf`` observe the (candidate-side) points ``pids``; a keypoint that
-    already has a live point merges it into the candidate's. Returns the number of points merged."""
-    store = map_.points
-    if len(kp) == 0:
-        return 0
-    # a candidate point already observed by this keyframe elsewhere: skip (one observation each)
-    dup_obs = np.isin(pids, kf.point_ids[kf.point_ids >= 0]) & (kf.point_ids[kp] != pids)
-    kp, pids = kp[~dup_obs], pids[~dup_obs]
-    cur = kf.point_ids[kp]
-    free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
-    kf.point_ids[kp[free]] = pids[free]
-    np.add.at(store.n_obs, pids[free], 1)
-    dup = ~free & (cur != pids)
-    return map_.merge_points(remap[cur[dup]], remap[pids[dup]], remap)

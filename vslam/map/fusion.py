@@ -43,7 +43,7 @@ def assign_observations(slam_map: "Map", kf: KeyFrame, kp: np.ndarray, pids: np.
     point, or a dead one) takes the point; a keypoint observing another point has that point merged
     into ``pids`` (:meth:`Map.merge_points`, recorded in ``remap``). A point ``kf`` already observes
     through another keypoint is skipped (one observation per keyframe). Returns the points merged
-    away. (Loop closing's ``_assign`` does the same for a loop's query side.)"""
+    away. Used by loop closing (a loop's query side), segment joining and map merging."""
     store = slam_map.points
     kp, pids = np.asarray(kp, np.int64), np.asarray(pids, np.int64)
     if len(kp) == 0:
