@@ -338,7 +338,7 @@ class System:
             "frames_ok": self._n.get("ok", 0),
             "frames_lost": self._n.get("lost", 0),
             "frames_initializing": self._n.get("initializing", 0),
-            "map_segments": self.tracker.segment + 1,
+            "map_segments": self.tracker.segment + 1,  # segments started (joins do not lower it)
             "segments": len({k.segment for k in self.map.keyframes.values()}),
             "merges": [m.to_json() for m in self.loop_closer.merges] if self.loop_closer is not None else [],
             "relocalizations": self.tracker.n_relocalized,
