@@ -24,8 +24,6 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from vslam.errors import MapFormatError
-
 log = logging.getLogger(__name__)
 
 
@@ -87,14 +85,9 @@ def localize_path(
 def open_map(map_dir: Path) -> tuple[Any, Any, Any, dict]:
     """``(map, database, camera, metadata)`` of the map saved in ``map_dir``; MapFormatError when
     there is none or it has no keyframes."""
-    from vslam.map.io import load_map
+    from vslam.map.io import load_run_map
 
-    if not map_dir.exists():
-        raise MapFormatError(f"{map_dir}: no such map folder (give the --output folder of a `vslam run`)")
-    slam_map, database, map_camera, metadata = load_map(map_dir)
-    if not slam_map.keyframes:
-        raise MapFormatError(f"{map_dir}: the map has no keyframes; nothing to localize against")
-    return slam_map, database, map_camera, metadata
+    return load_run_map(map_dir, "the map", "localize against")
 
 
 def _check_camera(map_camera: Any, camera: Any) -> None:

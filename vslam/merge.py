@@ -349,14 +349,9 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
 
 # ============================================================================ paths
 def _load(path: Path, what: str):
-    from vslam.map.io import load_map
+    from vslam.map.io import load_run_map
 
-    if not path.exists():
-        raise MapFormatError(f"{path}: no such map folder (give the --output folder of a `vslam run`)")
-    slam_map, db, camera, meta = load_map(path)
-    if not slam_map.keyframes:
-        raise MapFormatError(f"{path}: map {what} has no keyframes; nothing to merge")
-    return slam_map, db, camera, meta
+    return load_run_map(path, f"map {what}", "merge")
 
 
 def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config: str | Path | Any | None = None,

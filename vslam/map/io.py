@@ -91,7 +91,7 @@ if TYPE_CHECKING:
 __all__ = [
     "COVISIBILITY_FILE", "DATABASE_FILE", "FORMAT_NAME", "FORMAT_VERSION", "KEYFRAMES_FILE",
     "KEYFRAME_FIELD_KINDS", "KEYFRAME_FIELD_SHAPES", "KEYPOINT_COUNT_FIELD", "MANIFEST_FILE", "MAP_DIRNAME",
-    "MAP_STRUCTURES", "POINTS_FILE", "POINT_COLUMNS", "load_map", "save_map",
+    "MAP_STRUCTURES", "POINTS_FILE", "POINT_COLUMNS", "load_map", "load_run_map", "save_map",
 ]
 
 log = logging.getLogger(__name__)
@@ -287,3 +287,14 @@ def _read_manifest(root: Path) -> dict:
     return manifest
 
 
+def load_run_map(run_dir: str | Path, what: str, purpose: str):
+    """:func:`load_map` of a run folder a user named: one-line :class:`MapFormatError` when the
+    folder is missing or its map has no keyframes (``"{run_dir}: {what} has no keyframes; nothing
+    to {purpose}"``). Returns ``(map, database, camera, metadata)``."""
+    run_dir = Path(run_dir)
+    if not run_dir.exists():
+        raise MapFormatError(f"{run_dir}: no such map folder (give the --output folder of a `vslam run`)")
+    slam_map, database, camera, metadata = load_map(run_dir)
+    if not slam_map.keyframes:
+        raise MapFormatError(f"{run_dir}: {what} has no keyframes; nothing to {purpose}")
+    return slam_map, database, camera, metadata
