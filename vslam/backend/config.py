@@ -105,12 +105,14 @@ class EKFConfig:
     default_sigma_position: float = param(0.01, "metres; measurement std when update gets none")
     default_sigma_rotation: float = param(0.01, "radians; measurement std when update gets none")
     gate_chi2: float = param(float("inf"), "Mahalanobis gate on the 6-dof innovation (inf disables; 22.46 = 99.9 %)")
+    inlier_error_px: float = param(1.0, "pixels; assumed error of the frontend's inliers, scales the measured pose's covariance")
+    min_inlier_error_px: float = param(0.1, "pixels; floor of that error (keeps the covariance of a perfect fit positive)")
 
     def __post_init__(self) -> None:
         for name in (
             "accel_sigma", "angular_accel_sigma", "initial_sigma_position", "initial_sigma_rotation",
             "initial_sigma_velocity", "initial_sigma_angular_velocity", "default_sigma_position",
-            "default_sigma_rotation", "gate_chi2",
+            "default_sigma_rotation", "gate_chi2", "inlier_error_px", "min_inlier_error_px",
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"EKF config {name} must be > 0, got {getattr(self, name)}")
@@ -195,6 +197,7 @@ class BackendConfig:
     # Local BA, loop closing off, ATE m, reference -> interpolate: KITTI 06 stereo 0.0561 -> 0.0557, KITTI 07
     # mono 0.340 -> 0.339, fr1/desk 9 frames 0.00468 -> 0.00463, EuRoC V1_01 40 frames 0.00089 -> 0.00088 (with
     # the u_right RGB-D residual); synthetic RGB-D (exact ground truth, 60 frames) 0.0057 -> 0.0040.
+    dense_link_min_depth: float = param(0.1, "metres; an RGB-D dense-link sample enters local BA only if it lies this far in front of both keyframes")
     frame_correction: Literal["reference", "interpolate"] = param("interpolate", "frames between keyframes follow them: reference (their reference keyframe) or interpolate (blend by time)")
 
     def __post_init__(self) -> None:
@@ -204,5 +207,7 @@ class BackendConfig:
             raise ConfigError(f"backend parallel_worker must be thread or process, got {self.parallel_worker!r}")
         if self.lag_frames < 1:
             raise ConfigError(f"backend lag_frames must be >= 1, got {self.lag_frames}")
+        if not self.dense_link_min_depth > 0:
+            raise ConfigError(f"backend dense_link_min_depth must be > 0, got {self.dense_link_min_depth}")
         if self.frame_correction not in ("reference", "interpolate"):
             raise ConfigError(f"backend frame_correction must be 'reference' or 'interpolate', got {self.frame_correction!r}")

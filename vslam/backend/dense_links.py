@@ -29,9 +29,12 @@ from vslam.backend.problem import BAProblem, BAResult
 from vslam.map.dense_links import DenseLink
 
 
-def add_dense_links(problem: BAProblem, links: dict[int, DenseLink], sigma_px: float = 1.0) -> tuple[BAProblem, int]:
+def add_dense_links(problem: BAProblem, links: dict[int, DenseLink], sigma_px: float = 1.0,
+                    min_depth: float = 0.1) -> tuple[BAProblem, int]:
     """``problem`` plus the points of every link whose two keyframes are in it (at least one not
-    fixed), and the number of points added (0: ``problem`` itself). Point ids are negative."""
+    fixed), and the number of points added (0: ``problem`` itself). Point ids are negative. A sample
+    enters only if it lies more than ``min_depth`` metres in front of keyframe a (the tracker's
+    samples are already in front of b)."""
     kf_ids = problem.kf_ids
     present = set(kf_ids.tolist())
     fixed = set(problem.fixed_kf_ids.tolist())
@@ -47,7 +50,7 @@ def add_dense_links(problem: BAProblem, links: dict[int, DenseLink], sigma_px: f
         z = link.depth
         Xb = np.column_stack([(link.uv[:, 0] - cx) / fx * z, (link.uv[:, 1] - cy) / fy * z, z])
         Xa = Xb @ link.T_prev_cur[:3, :3].T + link.T_prev_cur[:3, 3]
-        front = Xa[:, 2] > 0.1
+        front = Xa[:, 2] > min_depth
         if not front.any():
             continue
         Xb, Xa, uvb, zb = Xb[front], Xa[front], link.uv[front], z[front]

@@ -100,19 +100,20 @@ class EKFState:
 
 
 def pose_covariance_from_inliers(n_inliers: int, reprojection_rmse_px: float, focal_px: float,
-                                 mean_depth_m: float) -> np.ndarray:
+                                 mean_depth_m: float, min_rmse_px: float = 0.1) -> np.ndarray:
     """A rough ``(6, 6)`` measurement covariance (position, rotation) for a PnP pose.
 
     With ``n`` inliers of pixel error ``e``, the bearing error is ``e / f`` and averages down with
     ``sqrt(n)``: ``sigma_rot ~ e / (f sqrt(n))`` rad, ``sigma_pos ~ depth * e / (f sqrt(n))`` m (a
-    first-order scaling, Hartley & Zisserman Sec. 5.2, not a full covariance propagation).
+    first-order scaling, Hartley & Zisserman Sec. 5.2, not a full covariance propagation). ``e`` is
+    at least ``min_rmse_px`` so that a perfect fit keeps a positive covariance.
     """
     if n_inliers <= 0 or not reprojection_rmse_px >= 0 or not focal_px > 0 or not mean_depth_m > 0:
         raise GeometryError(
             f"pose covariance needs n_inliers > 0, rmse >= 0, focal > 0, depth > 0; got "
             f"{n_inliers}, {reprojection_rmse_px}, {focal_px}, {mean_depth_m}"
         )
-    e = max(reprojection_rmse_px, 0.1) / (focal_px * np.sqrt(n_inliers))
+    e = max(reprojection_rmse_px, min_rmse_px) / (focal_px * np.sqrt(n_inliers))
     return np.diag([(mean_depth_m * e) ** 2] * 3 + [e**2] * 3)
 
 

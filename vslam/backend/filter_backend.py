@@ -37,15 +37,16 @@ class FilterBackend:
         config: the EKF settings.
         camera: intrinsics (``fx`` scales the measurement covariance).
         map_: the map (the reference keyframe's points give the scene depth).
-        reprojection_rmse_px: assumed pixel error of the frontend's inliers.
+        reprojection_rmse_px: assumed pixel error of the frontend's inliers (None: the config's
+            ``inlier_error_px``).
     """
 
     def __init__(self, config: EKFConfig | None, camera: PinholeCamera, map_: Map,
-                 reprojection_rmse_px: float = 1.0) -> None:
+                 reprojection_rmse_px: float | None = None) -> None:
         self.config = config or EKFConfig()
         self.camera = camera
         self.map = map_
-        self.rmse_px = float(reprojection_rmse_px)
+        self.rmse_px = float(self.config.inlier_error_px if reprojection_rmse_px is None else reprojection_rmse_px)
         self.ekf = PoseEKF(self.config)
         self._last_t: float | None = None
         self._depth_cache: dict[int, float] = {}
@@ -86,7 +87,7 @@ class FilterBackend:
             self.n_predict_only += 1
             return None
         cov = pose_covariance_from_inliers(max(int(n_inliers), 1), self.rmse_px, self.camera.fx,
-                                           self._scene_depth(ref_kf))
+                                           self._scene_depth(ref_kf), self.config.min_inlier_error_px)
         T = self.ekf.update(T_world_cam, cov)
         self._last_t = float(timestamp)
         self.n_updates += 1

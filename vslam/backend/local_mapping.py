@@ -196,7 +196,8 @@ class LocalMapper:
             if built is not None and self.dense_links:
                 from vslam.backend.dense_links import add_dense_links
 
-                linked, n_links = add_dense_links(built[0], self.dense_links)
+                linked, n_links = add_dense_links(built[0], self.dense_links,
+                                                  min_depth=self.config.dense_link_min_depth)
                 built = (linked, built[1])
             known = set(self.map.keyframes) if self._parallel else None
         if built is None:
@@ -352,7 +353,8 @@ class LocalMapper:
             if self.dense_links:
                 from vslam.backend.dense_links import add_dense_links
 
-                problem, n_links = add_dense_links(problem, self.dense_links)
+                problem, n_links = add_dense_links(problem, self.dense_links,
+                                                   min_depth=self.config.dense_link_min_depth)
             epoch = self.map.loop_epoch
             known = set(self.map.keyframes)
         t0 = time.perf_counter()
