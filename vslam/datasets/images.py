@@ -152,10 +152,17 @@ def load_depth(
             f"{path}: depth image is {raw.shape[1]}x{raw.shape[0]} but the colour image is "
             f"{shape[1]}x{shape[0]}; depth must be registered to and the same size as the colour image"
         )
+    # 0 / scale is 0 already; one other invalid value (7-Scenes' 65535): one compiled pass
+    bad = [int(v) for v in invalid if v != 0]
+    if len(bad) <= 1 and raw.flags.c_contiguous:
+        from vslam.datasets.depth_kernels import scale_depth
+
+        depth = np.empty(raw.shape, np.float32)
+        scale_depth(raw, np.float32(scale), bad[0] if bad else -1, depth)
+        return depth
     depth = raw.astype(np.float32) / np.float32(scale)
-    for v in invalid:
-        if v != 0:
-            depth[raw == v] = 0.0
+    for v in bad:
+        depth[raw == v] = 0.0
     return depth
 
 

@@ -85,17 +85,23 @@ class OrbGridDetector:
         self.orientation = Orientation(c.patch_size)
 
     def _fast(self, detector, img: np.ndarray, mask: np.ndarray | None):
-        """FAST corners inside the descriptor border: integer ``x, y`` and the FAST score."""
-        kps = detector.detect(img, mask)
+        """FAST corners inside the descriptor border: integer ``x, y`` and the FAST score.
+
+        FAST runs on the crop 4 px beyond that border only: a corner's score depends on its
+        7 x 7 neighbourhood and its suppression on its 8 neighbours' scores, all inside the crop
+        for every corner kept, so the result is the whole image's (fewer pixels and keypoints)."""
+        h, w = img.shape
+        b = self.border
+        o = max(b - 4, 0)
+        crop = img[o : h - o, o : w - o]
+        kps = detector.detect(crop, None if mask is None else mask[o : h - o, o : w - o])
         if not kps:
             z = np.zeros(0, np.int64)
             return z, z.copy(), np.zeros(0, np.float32)
         pts = cv2.KeyPoint_convert(kps)
         score = responses(kps)
-        x = pts[:, 0].astype(np.int64)
-        y = pts[:, 1].astype(np.int64)
-        h, w = img.shape
-        b = self.border
+        x = pts[:, 0].astype(np.int64) + o
+        y = pts[:, 1].astype(np.int64) + o
         inside = (x >= b) & (y >= b) & (x < w - b) & (y < h - b)
         return x[inside], y[inside], score[inside]
 

@@ -9,21 +9,19 @@ import operator
 import cv2
 import numpy as np
 
+from vslam.features import orb_kernels
 from vslam.features.keypoints import Features
 from vslam.features.pyramid import check_gray
 
 
 class Orientation:
     """Intensity-centroid orientation (ORB eq. 1-3) on a circular patch of radius ``r``, for many
-    keypoints at once. The disc is a stack of row segments ``[-umax(dy), umax(dy)]``, so with
-    per-row prefix sums of ``I`` and ``x*I`` every moment is 2 lookups per row (exact, int64)."""
+    keypoints at once. The disc is a stack of row segments ``[-umax(dy), umax(dy)]``; the moments
+    are exact integer sums over it (one compiled pass per keypoint)."""
 
     def __init__(self, patch_size: int) -> None:
         r = patch_size // 2
         self.radius = r
-        dy = np.arange(-r, r + 1)
-        self.dy = dy.astype(np.int64)
-        self.dyf = dy.astype(np.float64)
         # Half-widths of the disc rows, made symmetric in u and v like OpenCV's ORB, so the angles
         # agree with cv2.ORB to ~0.01 degree (checked in the tests).
         half = np.zeros(r + 2, np.int64)
@@ -36,29 +34,24 @@ class Orientation:
                 v0 += 1
             half[v] = v0
             v0 += 1
-        self.umax = np.r_[half[: r + 1][::-1], half[1 : r + 1]]
+        self.umax = np.ascontiguousarray(np.r_[half[: r + 1][::-1], half[1 : r + 1]], np.int64)
+        # the disc {|dx| <= umax[dy]} equals its transpose, so one pass over its rows gives both moments
+        disc = np.abs(np.arange(-r, r + 1))[None, :] <= self.umax[:, None]
+        assert (disc == disc.T).all(), "ORB orientation disc must be symmetric"
+        orb_kernels.warm()
 
-    def __call__(self, img: np.ndarray, x: np.ndarray, y: np.ndarray, integral=None) -> np.ndarray:
+    def __call__(self, img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Angles in degrees ``[0, 360)`` at integer pixel ``(x, y)`` of ``img`` (>= r from border).
 
-        ``m01 = sum_dy dy * rowsum(dy)`` and, the disc being symmetric,
-        ``m10 = sum_dx dx * colsum(dx)``; each segment sum is 4 lookups in the integral image."""
+        ``m01 = sum_dy dy * rowsum(dy)`` and ``m10 = sum_dx dx * colsum(dx)`` over the disc, exact
+        integers (compiled: :func:`vslam.features.orb_kernels.ic_moments`), then ``atan2``."""
         if len(x) == 0:
             return np.zeros(0, np.float32)
-        ii = integral if integral is not None else cv2.integral(img, sdepth=cv2.CV_32S)
-        f = ii.reshape(-1)
-        w1 = ii.shape[1]
-        d, u = self.dy, self.umax
-        # one flat base index per keypoint plus per-row constant offsets (row y+d, columns
-        # [x-u, x+u] for m01; column x+d, rows [y-u, y+u] for m10; integral index is exclusive)
-        k = (np.asarray(y, np.int64) * w1 + np.asarray(x, np.int64))[:, None]
-        r0, r1 = d * w1, (d + 1) * w1
-        rows = f[k + (r1 + u + 1)] - f[k + (r1 - u)] - f[k + (r0 + u + 1)] + f[k + (r0 - u)]
-        t, btm = -u * w1, (u + 1) * w1
-        cols = f[k + (btm + d + 1)] - f[k + (btm + d)] - f[k + (t + d + 1)] + f[k + (t + d)]
-        # segment sums fit int32; the moments are integers far below 2^53: exact in float64
-        m01 = rows.astype(np.float64) @ self.dyf
-        m10 = cols.astype(np.float64) @ self.dyf
+        n = len(x)
+        m01 = np.empty(n, np.float64)
+        m10 = np.empty(n, np.float64)
+        orb_kernels.ic_moments(np.ascontiguousarray(img), np.ascontiguousarray(x, np.int64),
+                               np.ascontiguousarray(y, np.int64), self.umax, m01, m10)
         ang = np.degrees(np.arctan2(m01, m10))
         return np.mod(ang, 360.0).astype(np.float32)
 
