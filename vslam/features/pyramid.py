@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.features import orb_kernels
 
 
 def check_gray(gray: np.ndarray) -> np.ndarray:
@@ -52,8 +53,14 @@ def grid_select(uv: np.ndarray, score: np.ndarray, cell_size: float, n_keep: int
     n = len(uv)
     score = np.asarray(score)
     idx = np.arange(n, dtype=np.int64)
+    small_int = n and np.all(score == np.round(score)) and score.min() >= 0 and score.max() < 2**16
+    if small_int:  # FAST scores: the same order by counting sorts (compiled)
+        cx = (uv[:, 0] // cell_size).astype(np.int64)
+        cy = (uv[:, 1] // cell_size).astype(np.int64)
+        if cx.min() >= 0 and cy.min() >= 0:
+            return orb_kernels.grid_order(cx, cy, score.astype(np.int64), int(n_keep))
     # unique "badness" key, 0 for the best point: (score rank, index)
-    if n and np.all(score == np.round(score)) and score.min() >= 0 and score.max() < 2**16:
+    if small_int:
         srank = (int(score.max()) - score).astype(np.int64) * n + idx  # FAST scores: small ints
     else:
         srank = np.empty(n, np.int64)
