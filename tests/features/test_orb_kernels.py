@@ -1,0 +1,123 @@
+"""The compiled detector bookkeeping (vslam.features.orb_kernels) and the cropped FAST against the
+NumPy / whole-image code they replaced (kept here as references): results must be identical."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from vslam.features.config import FeatureConfig
+from vslam.features.detect import OrbGridDetector
+from vslam.features.orb_describe import Orientation, responses
+from vslam.features.pyramid import build_pyramid, grid_select
+
+
+def _orientation_ref(o: Orientation, img, x, y):
+    """The integral-image version (row sums for m01, column sums for m10)."""
+    ii = cv2.integral(img, sdepth=cv2.CV_32S)
+    f = ii.reshape(-1)
+    w1 = ii.shape[1]
+    d = np.arange(-o.radius, o.radius + 1).astype(np.int64)
+    u = o.umax
+    k = (np.asarray(y, np.int64) * w1 + np.asarray(x, np.int64))[:, None]
+    r0, r1 = d * w1, (d + 1) * w1
+    rows = f[k + (r1 + u + 1)] - f[k + (r1 - u)] - f[k + (r0 + u + 1)] + f[k + (r0 - u)]
+    t, btm = -u * w1, (u + 1) * w1
+    cols = f[k + (btm + d + 1)] - f[k + (btm + d)] - f[k + (t + d + 1)] + f[k + (t + d)]
+    m01 = rows.astype(np.float64) @ d.astype(np.float64)
+    m10 = cols.astype(np.float64) @ d.astype(np.float64)
+    return np.mod(np.degrees(np.arctan2(m01, m10)), 360.0).astype(np.float32)
+
+
+def _grid_select_ref(uv, score, cell_size, n_keep):
+    """The two-sort NumPy version."""
+    n = len(uv)
+    score = np.asarray(score)
+    idx = np.arange(n, dtype=np.int64)
+    if n and np.all(score == np.round(score)) and score.min() >= 0 and score.max() < 2**16:
+        srank = (int(score.max()) - score).astype(np.int64) * n + idx
+    else:
+        srank = np.empty(n, np.int64)
+        srank[np.argsort(-score, kind="stable")] = idx
+    if n <= n_keep:
+        return np.argsort(srank)
+    span = int(srank.max()) + 1
+    cx = (uv[:, 0] // cell_size).astype(np.int64)
+    cy = (uv[:, 1] // cell_size).astype(np.int64)
+    cell = cy * (int(cx.max()) + 1) + cx
+    order = np.argsort(cell * span + srank)
+    cs = cell[order]
+    start = np.r_[True, cs[1:] != cs[:-1]]
+    first = np.maximum.accumulate(np.where(start, idx, 0))
+    rank = np.empty(n, np.int64)
+    rank[order] = idx - first
+    key = rank * span + srank
+    part = np.argpartition(key, n_keep - 1)[:n_keep] if n_keep > 0 else np.zeros(0, np.int64)
+    return part[np.argsort(key[part])]
+
+
+def _fast_ref(det: OrbGridDetector, img, mask):
+    """FAST on the whole image, then the descriptor-border filter."""
+    kps = det.fast.detect(img, mask)
+    pts = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+    x, y, s = pts[:, 0].astype(np.int64), pts[:, 1].astype(np.int64), responses(kps)
+    h, w = img.shape
+    b = det.border
+    ins = (x >= b) & (y >= b) & (x < w - b) & (y < h - b)
+    return x[ins], y[ins], s[ins]
+
+
+@pytest.mark.parametrize("patch", [7, 15, 31, 45])
+def test_orientation_equals_integral_image_version(astronaut, gravel, patch):
+    o = Orientation(patch)
+    rng = np.random.default_rng(patch)
+    n_total = 0
+    for img in (astronaut, gravel, rng.integers(0, 256, (97, 131), dtype=np.uint8),
+                np.full((60, 70), 255, np.uint8)):
+        h, w = img.shape
+        r = patch // 2
+        x = rng.integers(r, w - r, 700)
+        y = rng.integers(r, h - r, 700)
+        got = o(img, x, y)
+        ref = _orientation_ref(o, img, x, y)
+        assert got.dtype == np.float32 and got.tobytes() == ref.tobytes()
+        n_total += len(x)
+    assert n_total == 2800
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_grid_select_equals_two_sort_version(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 3000))
+    uv = np.stack([rng.integers(0, 640, n), rng.integers(0, 480, n)], 1).astype(np.float32)
+    score = rng.integers(0, [5, 40, 255, 2, 60000, 100][seed], n).astype(np.float32)  # many ties
+    for n_keep in (0, 1, n // 7, n // 2, n - 1, n, n + 5):
+        got = grid_select(uv, score, 32, n_keep)
+        ref = _grid_select_ref(uv, score, 32, n_keep)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, ref)
+    # non-integer scores and negative coordinates keep the NumPy path: still the same
+    uv2 = uv - 100.0
+    s2 = score + rng.random(n).astype(np.float32)
+    np.testing.assert_array_equal(grid_select(uv2, score, 32, n // 3), _grid_select_ref(uv2, score, 32, n // 3))
+    np.testing.assert_array_equal(grid_select(uv, s2, 20, n // 3), _grid_select_ref(uv, s2, 20, n // 3))
+
+
+@pytest.mark.parametrize("threshold", [0, 1, 10, 25])
+def test_fast_on_the_crop_equals_whole_image(astronaut, brick, threshold):
+    """FAST on the crop 4 px outside the descriptor border keeps exactly the whole image's corners
+    (positions, order, scores), with and without a mask, on every pyramid level."""
+    det = OrbGridDetector(FeatureConfig(fast_threshold=max(threshold, 1)))
+    det.fast = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+    rng = np.random.default_rng(threshold)
+    n = 0
+    for img in (astronaut, brick):
+        for lvl in build_pyramid(img, 8, 1.2):
+            m = (rng.random(lvl.shape) < 0.6).astype(np.uint8) * 255
+            for mask in (None, m):
+                got = det._fast(det.fast, lvl, mask)
+                ref = _fast_ref(det, lvl, mask)
+                for a, b in zip(got, ref):
+                    assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+                n += len(ref[0])
+    assert n > 5000
