@@ -121,3 +121,69 @@ def test_fast_on_the_crop_equals_whole_image(astronaut, brick, threshold):
                     assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
                 n += len(ref[0])
     assert n > 5000
+
+
+def _detect_ref(det: OrbGridDetector, gray, mask=None):
+    """``OrbGridDetector.detect`` as it was: whole-image FAST, the integral-image orientation and the
+    two-sort grid selection (single threshold), same OpenCV descriptors."""
+    from vslam.features.orb_describe import make_keypoints, survivors
+
+    c = det.config
+    h0, w0 = gray.shape
+    levels = build_pyramid(gray, c.n_levels, c.scale_factor)
+    quotas = det.quotas.copy()
+    parts = []
+    for lvl, img in enumerate(levels):
+        h, w = img.shape
+        lvl_mask = None if mask is None else (mask if lvl == 0 else cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST))
+        x, y, score = _fast_ref(det, img, lvl_mask)
+        if len(x) == 0:
+            continue
+        keep = _grid_select_ref(np.stack([x, y], 1).astype(np.float32), score, c.cell_size, int(quotas[lvl]))
+        if lvl + 1 < len(quotas):
+            quotas[lvl + 1] += max(0, int(quotas[lvl]) - len(keep))
+        x, y, score = x[keep], y[keep], score[keep]
+        if len(x) == 0:
+            continue
+        ang = _orientation_ref(det.orientation, img, x, y)
+        kps_out, desc = det.orb.compute(img, make_keypoints(x, y, ang, float(c.patch_size)))
+        ids = survivors(kps_out, x, y)
+        uv = np.stack([(x[ids] + 0.5) * (w0 / w) - 0.5, (y[ids] + 0.5) * (h0 / h) - 0.5], 1)
+        parts.append((uv, desc, np.full(len(ids), lvl, np.int32), score[ids], ang[ids]))
+    uv, desc, octv, resp, ang = (np.concatenate(z) for z in zip(*parts))
+    size = (c.patch_size * np.power(c.scale_factor, octv)).astype(np.float32)
+    return (uv.astype(np.float32), np.ascontiguousarray(desc, np.uint8), octv, resp.astype(np.float32),
+            ang.astype(np.float32), size)
+
+
+def _assert_same(feats, ref):
+    got = (feats.uv, feats.descriptors, feats.octave, feats.response, feats.angle, feats.size)
+    for a, b in zip(got, ref):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("n_features", [500, 2000])
+def test_detect_equals_previous_code_path(astronaut, brick, gravel, n_features):
+    """The whole ORB detector output, array for array, against the previous code path; with a
+    mask too (KLT's top-up detection)."""
+    det = OrbGridDetector(FeatureConfig(n_features=n_features))
+    for img in (astronaut, brick, gravel):
+        feats = det.detect(img)
+        assert len(feats) > 0.9 * n_features
+        _assert_same(feats, _detect_ref(det, img))
+    mask = np.zeros(astronaut.shape, np.uint8)
+    mask[40:400, 100:480] = 255
+    _assert_same(det.detect(astronaut, mask), _detect_ref(det, astronaut, mask))
+
+
+def test_detect_equals_previous_code_path_on_real_frames(shared_data):
+    """7-Scenes (640 x 480) and KITTI (1241 x 376) frames: identical Features."""
+    det = OrbGridDetector(FeatureConfig())
+    paths = [shared_data / "7scenes_redkitchen/seq-xx/frame-000000.color.jpg",
+             shared_data / "7scenes_redkitchen/seq-xx/frame-000500.color.jpg",
+             shared_data / "kitti_odometry/sequences/06/image_0/000000.png"]
+    for p in paths:
+        gray = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        feats = det.detect(gray)
+        assert len(feats) >= 1900
+        _assert_same(feats, _detect_ref(det, gray))
