@@ -187,3 +187,13 @@ def test_detect_equals_previous_code_path_on_real_frames(shared_data):
         feats = det.detect(gray)
         assert len(feats) >= 1900
         _assert_same(feats, _detect_ref(det, gray))
+
+
+def test_orientation_refuses_points_whose_patch_leaves_the_image(astronaut):
+    from vslam.errors import VslamError
+
+    o = Orientation(31)
+    assert o(astronaut, np.array([15, 496]), np.array([15, 496])).shape == (2,)
+    for x, y in ((14, 100), (100, 14), (497, 100), (100, 497)):
+        with pytest.raises(VslamError, match="radius 15"):
+            o(astronaut, np.array([x]), np.array([y]))

@@ -9,6 +9,7 @@ import operator
 import cv2
 import numpy as np
 
+from vslam.errors import VslamError
 from vslam.features import orb_kernels
 from vslam.features.keypoints import Features
 from vslam.features.pyramid import check_gray
@@ -48,10 +49,15 @@ class Orientation:
         if len(x) == 0:
             return np.zeros(0, np.float32)
         n = len(x)
+        x = np.ascontiguousarray(x, np.int64)
+        y = np.ascontiguousarray(y, np.int64)
+        h, w = img.shape
+        r = self.radius
+        if x.min() < r or y.min() < r or x.max() >= w - r or y.max() >= h - r:  # the kernel reads unchecked
+            raise VslamError(f"orientation patch of radius {r} leaves the {w}x{h} image")
         m01 = np.empty(n, np.float64)
         m10 = np.empty(n, np.float64)
-        orb_kernels.ic_moments(np.ascontiguousarray(img), np.ascontiguousarray(x, np.int64),
-                               np.ascontiguousarray(y, np.int64), self.umax, m01, m10)
+        orb_kernels.ic_moments(np.ascontiguousarray(img), x, y, self.umax, m01, m10)
         ang = np.degrees(np.arctan2(m01, m10))
         return np.mod(ang, 360.0).astype(np.float32)
 
