@@ -137,6 +137,17 @@ def _detect_ref(det: OrbGridDetector, gray, mask=None):
         h, w = img.shape
         lvl_mask = None if mask is None else (mask if lvl == 0 else cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST))
         x, y, score = _fast_ref(det, img, lvl_mask)
+        if det.fast_low is not None:  # second threshold in the empty cells (unchanged code)
+            cs, b = c.cell_size, det.border
+            occupied = np.zeros((-(-h // cs), -(-w // cs)), np.uint8)
+            occupied[y // cs, x // cs] = 1
+            occupied[: b // cs, :] = 1
+            occupied[:, : b // cs] = 1
+            occupied[(h - b) // cs + 1 :, :] = 1
+            occupied[:, (w - b) // cs + 1 :] = 1
+            if not occupied.all():
+                x2, y2, s2 = det._fast_in_cells(img, occupied == 0, lvl_mask)
+                x, y, score = np.r_[x, x2], np.r_[y, y2], np.r_[score, s2]
         if len(x) == 0:
             continue
         keep = _grid_select_ref(np.stack([x, y], 1).astype(np.float32), score, c.cell_size, int(quotas[lvl]))
@@ -162,11 +173,11 @@ def _assert_same(feats, ref):
         assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-@pytest.mark.parametrize("n_features", [500, 2000])
-def test_detect_equals_previous_code_path(astronaut, brick, gravel, n_features):
+@pytest.mark.parametrize("n_features, min_fast", [(500, 0), (2000, 0), (2000, 5)])
+def test_detect_equals_previous_code_path(astronaut, brick, gravel, n_features, min_fast):
     """The whole ORB detector output, array for array, against the previous code path; with a
-    mask too (KLT's top-up detection)."""
-    det = OrbGridDetector(FeatureConfig(n_features=n_features))
+    mask too (KLT's top-up detection) and with ORB-SLAM's second FAST threshold."""
+    det = OrbGridDetector(FeatureConfig(n_features=n_features, min_fast_threshold=min_fast))
     for img in (astronaut, brick, gravel):
         feats = det.detect(img)
         assert len(feats) > 0.9 * n_features

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from vslam.errors import ConfigError
+from vslam.features import orb_kernels
 from vslam.features.config import FeatureConfig
 from vslam.features.keypoints import Features
 from vslam.features.orb_describe import Orientation, describe_orb, make_keypoints, responses, survivors
@@ -170,7 +171,9 @@ class OrbGridDetector:
             if len(x) == 0:
                 out.append(None)
                 continue
-            keep = grid_select(np.stack([x, y], 1).astype(np.float32), score, cs, int(quotas[lvl]))
+            # FAST scores are integers 0..255 and x, y >= 0: grid_select's counting-sort path, called
+            # directly (x // cs equals its float32 floor division for pixel coordinates)
+            keep = orb_kernels.grid_order(x // cs, y // cs, score.astype(np.int64), int(quotas[lvl]))
             if lvl + 1 < len(quotas):  # unused quota moves up the pyramid
                 quotas[lvl + 1] += max(0, int(quotas[lvl]) - len(keep))
             out.append((x[keep], y[keep], score[keep]))
