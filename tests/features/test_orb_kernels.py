@@ -135,7 +135,9 @@ def _detect_ref(det: OrbGridDetector, gray, mask=None):
     parts = []
     for lvl, img in enumerate(levels):
         h, w = img.shape
-        lvl_mask = None if mask is None else (mask if lvl == 0 else cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST))
+        lvl_mask = mask
+        if mask is not None and lvl > 0:
+            lvl_mask = cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST)
         x, y, score = _fast_ref(det, img, lvl_mask)
         if det.fast_low is not None:  # second threshold in the empty cells (unchanged code)
             cs, b = c.cell_size, det.border
