@@ -92,7 +92,7 @@ def _run(repeats: int) -> dict[str, dict[str, float]]:
     add("recover_pose (cheirality + pure-rotation test)", 1000, lambda: recover_pose(E, x1, x2, K, mask))
     n1, n2 = normalize_points(x1[300:], K), normalize_points(x2[300:], K)
     add("essential_8point (inliers only)", 700, lambda: essential_8point(n1, n2))
-    add("triangulate (linear, closed-form 3x3)", 1000, lambda: triangulate(T1, T2, K, x1, x2))
+    add("triangulate (linear DLT, OpenCV)", 1000, lambda: triangulate(T1, T2, K, x1, x2))
 
     _, T2p, Xp, _, x2p = _scene(500, seed=2)
     add("solve_pnp (P3P RANSAC + LM), 30% outl.", 500, lambda: solve_pnp(Xp, x2p, K))

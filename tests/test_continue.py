@@ -93,7 +93,15 @@ def test_map_of_another_sensor_is_refused(kitchen: dict, tmp_path: Path) -> None
 def test_monocular_segments_join_when_the_camera_returns(shared_data: Path) -> None:
     """Monocular 7-Scenes with frames 330-399 dropped and relocalization disabled: tracking is lost,
     a second segment starts with its own frame and scale, and when the camera returns to the start
-    (frame ~946 sees frame 0's place) the segments are joined under a Sim(3): one map at the end."""
+    (frame ~966 sees frame 0's place) the segments are joined under a Sim(3): one map at the end.
+
+    Where tracking is lost (after the gap, or later) and each segment's arbitrary monocular scale
+    move with any change of the mapping; the join's scale is the ratio of the two segments' scales
+    at the seam (measured against the ground truth: segment 0 0.46 map units per metre, segment 1
+    10.1, ratio 0.046), so it is pinned near its measured value, and the joined trajectory's ATE
+    checks it. A segment whose scale drifts cannot be fixed by one Sim(3): the inhomogeneous
+    re-triangulation once gave segment 1 a drift 0.19 -> 0.07-0.11 units/m, a correct seam scale
+    4.3-4.8 and an ATE of 0.38 m (notes in docs/architecture.md)."""
     from vslam.api import resolve_config
     from vslam.system import System
 
@@ -109,6 +117,6 @@ def test_monocular_segments_join_when_the_camera_returns(shared_data: Path) -> N
     assert s["segments"] == 1 and len(s["merges"]) == 1
     m = s["merges"][0]
     assert (m["from_segment"], m["into_segment"]) == (1, 0) and m["query_frame"] > 900 and m["match_frame"] < 50
-    assert 1.0 < m["scale"] < 1.2 and m["inliers"] >= 50  # measured 1.097, 114
+    assert 0.040 < m["scale"] < 0.053 and m["inliers"] >= 50  # measured 0.0463, 123
     r = evaluate_trajectories(system.trajectory(), ds.ground_truth(), align="sim3")
-    assert len(system.trajectory()) >= 900 and 0.05 < float(r.ate.rmse) < 0.11  # measured 0.0812 over 927 frames
+    assert len(system.trajectory()) >= 900 and 0.05 < float(r.ate.rmse) < 0.11  # measured 0.0920 over 923 frames

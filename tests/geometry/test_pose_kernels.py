@@ -9,7 +9,7 @@ from vslam.geometry.align import align_points
 from vslam.geometry.epipolar import essential_pose
 from vslam.geometry.lie import inv_se3, se3_exp, se3_log
 from vslam.geometry.pnp import refine_pose
-from vslam.geometry.triangulation import ray_parallax_deg, triangulate_dlt
+from vslam.geometry.triangulation import ray_parallax_deg, triangulate
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -96,6 +96,6 @@ def test_triangulate_and_parallax():
     T2 = se3_exp(np.array([-0.5, 0, 0, 0, 0.02, 0]))
     x1, _ = _project(T1, X)
     x2, _ = _project(T2, X)
-    np.testing.assert_allclose(triangulate_dlt(T1, T2, K, x1, x2), X, atol=1e-6)
+    np.testing.assert_allclose(triangulate(T1, T2, K, x1, x2), X, atol=1e-6)
     par = ray_parallax_deg(inv_se3(T1), inv_se3(T2), X)
     assert np.all(par > 4) and np.all(par < 12)

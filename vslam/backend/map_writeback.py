@@ -33,11 +33,14 @@ class PointWriteback:
     def retriangulate_left_out(self, pt: np.ndarray, kf: np.ndarray, uv: np.ndarray,
                                 corrections: dict[int, np.ndarray]) -> None:
         """``mono.left_out=retriangulate``: points left out of a monocular BA (two-view points) are triangulated
-        again (linear DLT, HZ 12.2) from their two observations with the corrected keyframe poses, so
-        tracking does not meet stale points next to corrected poses (see the config for the measured
-        trade-off). A point whose new triangulation is not in front of both keyframes keeps its
-        position."""
-        from vslam.geometry.triangulation import triangulate
+        again (:func:`vslam.geometry.triangulation.triangulate`, linear DLT, HZ 12.2) from their two
+        observations with the corrected keyframe poses, so tracking does not meet stale points next to
+        corrected poses (see the config for the measured trade-off). A point whose new triangulation
+        fails :func:`~vslam.geometry.triangulation.good_triangulation_mask` (in front of both keyframes,
+        within 4 px in both, 1 degree of parallax) keeps its position: with the cheirality test alone
+        a low-parallax point could land anywhere on its ray (7-Scenes mono: the segment's scale
+        drifted 2.6x, see docs/architecture.md)."""
+        from vslam.geometry.triangulation import good_triangulation_mask, triangulate
 
         store = self.map.points
         order = np.lexsort((kf, pt))
@@ -53,9 +56,7 @@ class PointWriteback:
             m = sel & (ka == a) & (kb == b)
             Ta, Tb = self.map.keyframes[a].T_cam_world, self.map.keyframes[b].T_cam_world
             X = triangulate(Ta, Tb, self.camera.K, ua[m], ub[m])
-            za = X @ Ta[2, :3] + Ta[2, 3]
-            zb = X @ Tb[2, :3] + Tb[2, 3]
-            ok = np.all(np.isfinite(X), axis=1) & (za > 0) & (zb > 0)
+            ok = good_triangulation_mask(Ta, Tb, self.camera.K, ua[m], ub[m], X, max_reproj_px=4.0)
             store.position[ids[m][ok]] = X[ok]
 
     def update_normals(self, problem: BAProblem, result: BAResult, good: np.ndarray) -> None:

@@ -17,7 +17,7 @@ from vslam.frontend.config import FrontendConfig
 from vslam.frontend.observation import Observation
 from vslam.geometry.epipolar import essential_pose
 from vslam.geometry.lie import inv_se3, make_T
-from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
+from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ class MonoInitializer:
             log.debug("init: status %s, %d inliers", status, int(mask.sum()))
             return None
         T_cur_ref = make_T(R, t)
-        X = triangulate_dlt(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
+        X = triangulate(np.eye(4), T_cur_ref, self.K, x1[mask], x2[mask])
         e1, z1 = reprojection_error_depth(np.eye(4), self.K, X, x1[mask])
         e2, z2 = reprojection_error_depth(T_cur_ref, self.K, X, x2[mask])
         T_ref_cur = inv_se3(T_cur_ref)

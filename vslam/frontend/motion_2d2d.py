@@ -15,7 +15,7 @@ from vslam.frontend.observation import Observation
 from vslam.geometry.camera import PinholeCamera
 from vslam.geometry.epipolar import essential_pose
 from vslam.geometry.lie import inv_se3, make_T
-from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
+from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate
 from vslam.map.matching import brute_force_match
 
 
@@ -124,7 +124,7 @@ class TwoViewTracker:
         tv = self.cfg.two_view
         T_cur_ref_unit = make_T(R, t)
         idx = np.flatnonzero(mask)
-        X = triangulate_dlt(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
+        X = triangulate(np.eye(4), T_cur_ref_unit, self.K, ref.uv_undist[i1[idx]], obs.uv_undist[i2[idx]])
         e1, za = reprojection_error_depth(np.eye(4), self.K, X, ref.uv_undist[i1[idx]])
         e2, zb = reprojection_error_depth(T_cur_ref_unit, self.K, X, obs.uv_undist[i2[idx]])
         good = (za > 0) & (zb > 0) & (e1 < tv.max_reproj_px) & (e2 < tv.max_reproj_px) \

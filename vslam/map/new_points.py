@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate_dlt
+from vslam.geometry.triangulation import ray_parallax_deg, reprojection_error_depth, triangulate
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
 from vslam.map.matching import brute_force_match
@@ -110,7 +110,7 @@ def triangulate_pairs(map_: Map, kf1: KeyFrame, idx1: np.ndarray, kf2: KeyFrame,
         return 0
     T1, T2 = kf1.T_cam_world, kf2.T_cam_world
     x1, x2 = kf1.uv_undist[idx1], kf2.uv_undist[idx2]
-    X = triangulate_dlt(T1, T2, p.K, x1, x2)
+    X = triangulate(T1, T2, p.K, x1, x2)
     e1, z1 = reprojection_error_depth(T1, p.K, X, x1)
     e2, z2 = reprojection_error_depth(T2, p.K, X, x2)
     s1 = np.power(p.scale_factor, kf1.octave[idx1].astype(float))
