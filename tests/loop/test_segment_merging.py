@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from vslam.geometry.lie import se3_exp
-from vslam.loop.segment_merging import MIN_SCALE_PAIRS, _seam_similarity
+from vslam.loop.config import ClosingConfig, LoopConfig
+from vslam.loop.segment_merging import _seam_similarity
 from vslam.loop.verification import Verified
 
 
@@ -22,7 +23,7 @@ def _scene(n: int, s_true: float, outliers: float, seed: int):
     bad = rng.random(n) < outliers
     X_query[bad] *= rng.uniform(0.2, 5.0, (bad.sum(), 1))
     kp = np.arange(n)
-    closer = SimpleNamespace(sensor="mono", features_of=lambda kf: SimpleNamespace(X_cam=X_query),
+    closer = SimpleNamespace(sensor="mono", features_of=lambda kf: SimpleNamespace(X_cam=X_query), config=LoopConfig(),
                              map=SimpleNamespace(points=SimpleNamespace(position=X_world)))
     # the RANSAC's scale, 12 % off (as its minimal-set estimate was on 7-Scenes: 4.81 vs 4.32)
     ver = Verified(T_world_cam=T_world_cam, scale=1.12 * s_true, kp_idx=kp, point_ids=kp, n_inliers=n, n_ransac=10)
@@ -42,7 +43,7 @@ def test_scale_is_the_median_depth_ratio_of_the_verified_inliers() -> None:
 
 
 def test_few_pairs_or_a_metric_sensor_keep_the_ransac_similarity() -> None:
-    closer, ver = _scene(MIN_SCALE_PAIRS - 1, 2.0, 0.0, seed=2)
+    closer, ver = _scene(ClosingConfig().merge_scale_min_pairs - 1, 2.0, 0.0, seed=2)
     np.testing.assert_array_equal(_seam_similarity(closer, None, ver), ver.S_world_cam)
     closer, ver = _scene(60, 2.0, 0.0, seed=3)
     closer.sensor = "rgbd"

@@ -143,10 +143,14 @@ class MonoBAConfig:
     # Measured on KITTI 07 mono, 160 frames (Sim(3) ATE / RPE trans, m; odometry alone 0.276 / 0.029): keep
     # 0.290 / 0.073 (the left-out points stay where tracking put them, so the frames between keyframes
     # saw-tooth against the corrected keyframes: RPE x2.5), transport 0.397 / 0.036, retriangulate 0.385 /
-    # 0.034. Over 5 clips (07 from frames 0, 20, 40, 80 and 06 mono) keep averages 0.192, retriangulate 0.222,
+    # 0.034 (before the retriangulation gate below; with it, the full pipeline gives 0.326). Over 5 clips (07 from frames 0, 20, 40, 80 and 06 mono) keep averages 0.192, retriangulate 0.222,
     # odometry 0.252. The default is retriangulate: a map consistent with its keyframes (smooth trajectory)
     # over the lower ATE that keep gets on KITTI 07.
     left_out: Literal["keep", "transport", "retriangulate"] = param("retriangulate", "two-view points left out of a monocular BA: keep, transport (with their keyframe) or retriangulate")
+    # Without this gate (cheirality alone) a low-parallax point lands anywhere on its ray: 7-Scenes mono's second
+    # segment drifted 2.6x in scale (docs/architecture.md). 2 px: KITTI 07 0.348, 4 px: 0.326.
+    retriangulate_max_reproj_px: float = param(4.0, "a re-triangulated point moves only if it reprojects within this many pixels in both keyframes")
+    retriangulate_min_parallax_deg: float = param(1.0, "... and is seen with at least this parallax, degrees (else it keeps its position)")
 
     def __post_init__(self) -> None:
         if self.min_observations < 2:

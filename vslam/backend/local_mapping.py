@@ -152,7 +152,8 @@ class LocalMapper:
         self.fusion = NeighbourFusion(map_, camera, sensor, self.config, self.scale_factor, self.problems.window,
                                       self.counts)
         self.culling = Culling(map_, self.config, self.counts)
-        self.writeback = PointWriteback(map_, camera)
+        mono = self.config.mono
+        self.writeback = PointWriteback(map_, camera, mono.retriangulate_max_reproj_px, mono.retriangulate_min_parallax_deg)
 
     # ------------------------------------------------------------------ feeding
     def on_keyframe(self, kf: KeyFrame) -> None:

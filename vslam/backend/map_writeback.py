@@ -12,9 +12,12 @@ from vslam.map.map import Map
 class PointWriteback:
     """Point updates after a BA result was written into the map."""
 
-    def __init__(self, map_: Map, camera: PinholeCamera) -> None:
+    def __init__(self, map_: Map, camera: PinholeCamera, max_reproj_px: float = 4.0,
+                 min_parallax_deg: float = 1.0) -> None:
         self.map = map_
         self.camera = camera
+        self.max_reproj_px = float(max_reproj_px)  # the retriangulation gate (backend.mono.retriangulate_*)
+        self.min_parallax_deg = float(min_parallax_deg)
 
     def transport_left_out(self, pt: np.ndarray, corrections: dict[int, np.ndarray]) -> None:
         """``mono.left_out=transport``: a point left out of a monocular BA keeps its coordinates in
@@ -37,7 +40,8 @@ class PointWriteback:
         observations with the corrected keyframe poses, so tracking does not meet stale points next to
         corrected poses (see the config for the measured trade-off). A point whose new triangulation
         fails :func:`~vslam.geometry.triangulation.good_triangulation_mask` (in front of both keyframes,
-        within 4 px in both, 1 degree of parallax) keeps its position: with the cheirality test alone
+        within ``max_reproj_px`` in both, ``min_parallax_deg`` of parallax) keeps its position: with
+        the cheirality test alone
         a low-parallax point could land anywhere on its ray (7-Scenes mono: the segment's scale
         drifted 2.6x, see docs/architecture.md)."""
         from vslam.geometry.triangulation import good_triangulation_mask, triangulate
@@ -56,7 +60,8 @@ class PointWriteback:
             m = sel & (ka == a) & (kb == b)
             Ta, Tb = self.map.keyframes[a].T_cam_world, self.map.keyframes[b].T_cam_world
             X = triangulate(Ta, Tb, self.camera.K, ua[m], ub[m])
-            ok = good_triangulation_mask(Ta, Tb, self.camera.K, ua[m], ub[m], X, max_reproj_px=4.0)
+            ok = good_triangulation_mask(Ta, Tb, self.camera.K, ua[m], ub[m], X, max_reproj_px=self.max_reproj_px,
+                                         min_parallax_deg=self.min_parallax_deg)
             store.position[ids[m][ok]] = X[ok]
 
     def update_normals(self, problem: BAProblem, result: BAResult, good: np.ndarray) -> None:

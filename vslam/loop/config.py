@@ -103,6 +103,7 @@ class ClosingConfig:
     search_radius_px: float = param(8.0, "guided matching radius at the estimated pose, pixels")
     min_inliers: int = param(40, "inliers after guided matching and refinement needed to accept a loop (RGB-D / stereo)")
     min_inliers_mono: int = param(40, "the same for monocular")
+    merge_scale_min_pairs: int = param(20, "monocular segment join: verified pairs with a query-side point needed to take the join's scale as their median depth ratio (else the RANSAC scale)")
     min_inlier_ratio: float = param(0.3, "accepted loops also need this fraction of the guided matches as inliers")
     max_correction_deg: float = param(45.0, "a loop correcting the query pose by more than this rotation is rejected, degrees")
     max_correction_m: float = param(2.0, "the same for translation, metres (ignored for monocular: unknown scale)")

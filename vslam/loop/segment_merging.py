@@ -38,8 +38,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-MIN_SCALE_PAIRS = 20  # verified pairs with a query point needed to re-estimate a monocular join's scale
-
 
 @dataclass
 class MergeRecord:
@@ -86,7 +84,7 @@ def _seam_similarity(closer: "LoopCloser", kf: KeyFrame, ver) -> np.ndarray:
     """``S_world_cam`` of the query in the matched segment's world. Monocular: the verified camera
     pose with the scale re-estimated on all verified inliers, the median of ``z_matched / z_query``
     (the matched points' depths in the verified camera over the query's own points' depths), when
-    ``MIN_SCALE_PAIRS`` of them have a query point; the 3D-3D RANSAC's scale rests on
+    ``closing.merge_scale_min_pairs`` of them have a query point; the 3D-3D RANSAC's scale rests on
     its minimal-set inliers alone (10-11 on 7-Scenes, where 40-60 verified inliers have a depth).
     Like ORB-SLAM3's merge, which optimizes the Sim(3) on all matches (Campos et al. 2021, VI-B)."""
     if closer.sensor != "mono" or len(ver.kp_idx) == 0:
@@ -95,7 +93,7 @@ def _seam_similarity(closer: "LoopCloser", kf: KeyFrame, ver) -> np.ndarray:
     T = inv_se3(ver.T_world_cam)
     z_match = closer.map.points.position[ver.point_ids] @ T[2, :3] + T[2, 3]
     ok = np.isfinite(z_query) & (z_query > 0) & (z_match > 0)
-    if ok.sum() < MIN_SCALE_PAIRS:
+    if ok.sum() < closer.config.closing.merge_scale_min_pairs:
         return ver.S_world_cam
     scale = float(np.median(z_match[ok] / z_query[ok]))
     log.debug("merge scale: RANSAC %.4f, median depth ratio of %d verified pairs %.4f", ver.scale, ok.sum(), scale)
