@@ -59,8 +59,10 @@ def test_system_and_localizer_satisfy_the_protocol():
     from vslam.system import System, TrackResult
 
     cam = PinholeCamera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
-    assert isinstance(System(Config(), cam, sensor="rgbd"), FrameTracker)
-    assert isinstance(Localizer(Map(), None, cam, sensor="rgbd"), FrameTracker)
+    system, localizer = System(Config(), cam, sensor="rgbd"), Localizer(Map(), None, cam, sensor="rgbd")
+    assert isinstance(system, FrameTracker) and isinstance(localizer, FrameTracker)
+    # both loaded the compiled kernels when built (vslam.stream.warm_kernels), and say how long it took
+    assert system.stats()["startup_ms"]["kernels"] >= 0.0 and localizer.stats()["startup_ms"]["kernels"] >= 0.0
     assert not isinstance(object(), FrameTracker)
     assert isinstance(TrackResult(0, 0.0, None, "lost", False, 0), FrameResult)
     assert isinstance(LocalizeResult(None, "lost", 0), FrameResult)
@@ -81,3 +83,36 @@ def test_the_run_loop_needs_only_the_protocol(tmp_path):
     assert stats["sensor"] == "test" and "error" not in stats
     # no keyframes, no map: none of those outputs
     assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["stats.json", "trajectory.txt"]
+
+
+def _kernels(module) -> dict:
+    """The public numba dispatchers of a kernel module (helpers compiled into them are not called alone)."""
+    return {name: f for name, f in vars(module).items() if not name.startswith("_") and hasattr(f, "signatures")}
+
+
+def test_warm_kernels_loads_every_kernel_with_the_types_the_solver_passes():
+    """After warm_kernels every public kernel of every registered module has machine code, and a
+    local BA (mono, stereo, RGB-D) needs no other signature, so it loads or compiles nothing."""
+    import importlib
+
+    from vslam.backend.bundle_adjustment import local_bundle_adjustment
+    from vslam.backend.synthetic import make_ba_problem
+    from vslam.stream import KERNEL_MODULES, warm_kernels
+
+    assert warm_kernels() >= 0.0
+    modules = [importlib.import_module(name) for name in KERNEL_MODULES]
+    before = {(m.__name__, k): len(f.signatures) for m in modules for k, f in _kernels(m).items()}
+    assert before and all(n >= 1 for n in before.values()), before
+    for sensor in ("mono", "stereo", "rgbd"):
+        problem, _ = make_ba_problem(n_keyframes=4, n_points=40, sensor=sensor, seed=2)
+        local_bundle_adjustment(problem)
+    after = {(m.__name__, k): len(f.signatures) for m in modules for k, f in _kernels(m).items()}
+    assert after == before
+
+
+def test_a_kernel_module_that_fails_to_warm_is_skipped(caplog):
+    from vslam.stream import warm_kernels
+
+    ms = warm_kernels(("vslam.no_such_kernels", "vslam.backend.schur_kernels"))
+    assert 0.0 <= ms < 60_000.0
+    assert "vslam.no_such_kernels" in caplog.text

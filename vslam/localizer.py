@@ -35,6 +35,7 @@ from vslam.geometry.lie import inv_se3
 from vslam.geometry.pnp import pnp_ransac, refine_pose
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.map.map import Map
+from vslam.stream import warm_kernels
 from vslam.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -87,6 +88,7 @@ class Localizer:
         from vslam.loop import load_default_vocabulary
         from vslam.loop.relocalization import Relocalizer
 
+        self._kernels_ms = warm_kernels()  # the compiled kernels loaded now, not in the first frames
         cfg = config if config is not None else Config()
         self.config = cfg
         self.cfg = localize_config or LocalizerConfig()
@@ -184,6 +186,7 @@ class Localizer:
             "implausible_steps": self.counts["implausible_steps"],
             "lost": self.counts["lost"],
             "stage_ms": {k: round(1000.0 * v / n, 2) for k, v in self.timers.items()},
+            "startup_ms": {"kernels": self._kernels_ms},  # loading the compiled kernels (vslam.stream)
         }
 
     # ------------------------------------------------------------------ prefetch hooks (vslam.stream)

@@ -30,6 +30,7 @@ from vslam.frontend.tracker import Tracker
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
 from vslam.map.map import Map
+from vslam.stream import warm_kernels
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ class System:
             from vslam.errors import CalibrationError
 
             raise CalibrationError("System needs the camera intrinsics (a PinholeCamera)")
+        self._kernels_ms = warm_kernels()  # the compiled kernels loaded now, not in the first frames
         if isinstance(config, FrontendConfig):
             fcfg = config
         else:
@@ -345,6 +347,7 @@ class System:
             "depth_bridged": self.tracker.n_depth_bridged,
             "depth_refined": self.tracker.n_depth_refined,
             "stage_ms": stage_ms,
+            "startup_ms": {"kernels": self._kernels_ms},  # loading the compiled kernels (vslam.stream)
             "sensor": self.sensor,
             "association": self.frontend_config.association,
             "motion": self.frontend_config.motion,

@@ -296,7 +296,7 @@ def _env() -> dict:
 SLOW_RUN = """
 import sys, time
 import vslam.datasets.prefetch as pf
-pf.PROCESS_MIN_FRAMES = 1
+pf.PROCESS_MIN_PIXELS = 1
 pf.PROCESS_HEAD_FRAMES = 0
 from vslam.system import System
 real = System.track

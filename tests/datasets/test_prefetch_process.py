@@ -44,15 +44,13 @@ def test_same_frames_in_order_with_the_work_results(tmp_path, make_tum):
 
 
 @pytest.mark.parametrize("head", [3, 9, 20])
-def test_head_frames_are_read_here_while_the_child_starts(tmp_path, make_tum, head):
+def test_head_frames_are_read_and_worked_on_here_while_the_child_starts(tmp_path, make_tum, head):
     root = make_tum(tmp_path / "seq", n=12)
     ds = open_dataset(root)
     plain = [(f.index, int(f.image.sum())) for f in ds.frames(2, 11)]
     got = list(prefetch_process(FrameRange(ds, 2, 11), _image_sum, depth=3, balance=False, head=head))
     assert [(f.index, int(f.image.sum())) for f, _, _ in got] == plain
-    n_head = min(head, 9)
-    assert [r for _, r, _ in got[:n_head]] == [None] * n_head  # no work done on the head here
-    assert [r for _, r, _ in got[n_head:]] == [p[1] for p in plain[n_head:]]
+    assert [r for _, r, _ in got] == [p[1] for p in plain]  # the work done on every frame (here in a thread for the head)
     assert _no_children()
 
 def test_corrupt_frame_is_skipped_and_reader_error_arrives_in_order(tmp_path, make_tum):
@@ -82,7 +80,11 @@ def test_choose_prefetch(tmp_path, make_tum, monkeypatch):
     ds = open_dataset(make_tum(tmp_path / "seq", n=12))
     monkeypatch.setattr(pf.os, "cpu_count", lambda: 2)
     monkeypatch.setattr(pf, "_main_is_reimportable", lambda: True)
+    assert pf._pixels_per_frame(ds) == ds.camera.width * ds.camera.height * 2  # RGB-D: color and depth
+    monkeypatch.setattr(pf, "PROCESS_MIN_PIXELS", 500 * pf._pixels_per_frame(ds))
     assert choose_prefetch("auto", FrameRange(ds), 12) == "thread"  # short: not worth a process
+    assert choose_prefetch("auto", FrameRange(ds), 499) == "thread"
+    assert choose_prefetch("auto", FrameRange(ds), 500) == "process"
     assert choose_prefetch("auto", FrameRange(ds), 1000) == "process"
     assert choose_prefetch("auto", iter(ds.frames()), 1000) == "thread"  # a plain iterator cannot be sent
     assert choose_prefetch("process", iter(ds.frames()), 1000) == "thread"
@@ -95,6 +97,23 @@ def test_choose_prefetch(tmp_path, make_tum, monkeypatch):
     assert choose_prefetch("auto", FrameRange(ds), 1000) == "thread"
     with pytest.raises(ConfigError, match="not one of"):
         choose_prefetch("fork", FrameRange(ds), 12)
+
+
+def test_process_prefetch_pays_only_past_the_kitti_and_euroc_runs():
+    """By the measured rule, the bench rows up to KITTI 07 (160 mono frames) read in a thread."""
+    from vslam.geometry.camera import PinholeCamera
+
+    class _Seq:
+        def __init__(self, w, h, sensor):
+            self.camera, self.sensor = PinholeCamera(500.0, 500.0, w / 2, h / 2, w, h), sensor
+
+    kitti06 = 51 * pf._pixels_per_frame(_Seq(1226, 370, "stereo"))
+    kitti07 = 160 * pf._pixels_per_frame(_Seq(1241, 376, "mono"))
+    euroc = 40 * pf._pixels_per_frame(_Seq(752, 480, "stereo"))
+    scenes = 1000 * pf._pixels_per_frame(_Seq(640, 480, "rgbd"))
+    assert kitti06 == 51 * 2 * 1226 * 370 and kitti07 == 160 * 1241 * 376
+    assert max(kitti06, kitti07, euroc) < pf.PROCESS_MIN_PIXELS < scenes
+    assert pf._pixels_per_frame(object()) == 640 * 480  # size unknown: VGA mono
 
 
 def test_unguarded_script_is_detected(tmp_path, monkeypatch):

@@ -239,3 +239,31 @@ def times_blockdiag(W, V, free, cam_row, pt, n_p, Y):  # pragma: no cover - comp
                 s = 0.0 + w0 * V[0, k, p]
                 s = s + w1 * V[1, k, p]
                 Y[r6 + a, k * n_p + p] = s + w2 * V[2, k, p]
+
+
+def warm() -> None:
+    """Call each kernel once on a tiny problem with the argument types :mod:`schur_lm` passes, so the
+    first real call pays no loading (or compiling) of the cached machine code (~0.15 s)."""
+    n_c, n_p = 2, 2
+    cam = np.array([0, 0, 1], np.int64)
+    pt = np.array([0, 1, 1], np.int64)
+    m = len(cam)
+    R = np.ascontiguousarray(np.tile(np.eye(3), (n_c, 1, 1)))
+    t = np.zeros((n_c, 3))
+    X = np.array([[0.0, 0.0, 2.0], [0.5, -0.5, 3.0]])
+    meas_T = np.ascontiguousarray(np.array([[320.0, 240.0, 300.0]] * m).T)
+    baseline = np.full(m, 0.1)
+    stereo = np.ones(m, bool)
+    disparity = np.zeros(m, bool)
+    info = np.ones(m)
+    r, chi2, X_cam = np.empty((3, m)), np.empty(m), np.empty((3, m))
+    predict(R, t, X, cam, pt, meas_T, baseline, stereo, disparity, False, info, info, True,
+            500.0, 500.0, 320.0, 240.0, 1e-3, r, chi2, X_cam)
+    w_rows = np.ones((3, m))
+    cam_row = np.array([0, 0, 1], np.int64)
+    buf = np.zeros((6 * (n_c + 1), 3 * n_p))
+    Hpp, gp = np.empty((3, 3, n_p)), np.empty((3, n_p))
+    linearize(R, cam, pt, X_cam, r, chi2, w_rows, True, np.full(m, 5.0), baseline, disparity, False,
+              500.0, 500.0, True, cam_row, n_p, True, buf, np.empty((6, 3, 0)), np.empty((33, m)), Hpp, gp)
+    V = np.ascontiguousarray(np.tile(np.eye(3)[:, :, None], (1, 1, n_p)))
+    times_blockdiag(buf[: 6 * n_c], V, np.arange(m), cam_row, pt, n_p, np.zeros((6 * n_c, 3 * n_p)))

@@ -12,8 +12,8 @@ have without prefetching. Closing the returned iterator (or dropping it) stops t
 :func:`prefetch_process` does the same in a child *process* for a :class:`FrameRange` (a picklable
 dataset slice): decoding and the per-frame ``work`` (e.g. feature detection) then run outside this
 interpreter, so they never compete with the tracker for the GIL. It starts a fresh interpreter
-(``spawn``, about a second), so :func:`choose_prefetch` picks it only for long runs, on two or more
-cores, when the main module is safe to import again in the child.
+(``spawn``, about a second), so :func:`choose_prefetch` picks it only for long runs (by the pixels
+to read), on two or more cores, when the main module is safe to import again in the child.
 
 Example:
     >>> for frame in prefetch(ds.frames(), depth=4):     # doctest: +SKIP
@@ -123,7 +123,12 @@ class FrameRange:
 
 
 PREFETCH_MODES = ("auto", "thread", "process", "none")
-PROCESS_MIN_FRAMES = 150  # below this, starting an interpreter costs more than it saves
+# Pixels to read and prepare (frames x pixels x images per frame) below which starting an interpreter
+# (~1-1.6 s of CPU) costs more than it saves. Measured (prefetch process vs thread, A/B back to back
+# on a loaded 2-core machine, with the stereo depth prepared ahead): EuRoC 40 stereo frames (29 M)
+# 5.0-7.0 vs 11.3-12.4 frames/s, KITTI 06 51 stereo frames (46 M) 5.8-6.8 vs 7.1-8.2, KITTI 07
+# 160 mono frames (73 M) 6.3-7.7 vs 7.9-9.2; 7-Scenes' first 300 RGB-D frames (184 M) 6.55 vs 5.75.
+PROCESS_MIN_PIXELS = 150_000_000
 PROCESS_HEAD_FRAMES = 30  # read by the consumer itself while the child starts (~1 s at 30 frames/s)
 
 
@@ -156,8 +161,8 @@ def _picklable(obj: Any) -> bool:
 
 def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
     """Resolve ``mode`` (one of :data:`PREFETCH_MODES`) for ``frames``: ``auto`` is ``process``
-    for a :class:`FrameRange` of at least :data:`PROCESS_MIN_FRAMES` frames on a machine with two or
-    more cores, from a non-daemonic process whose main module is safe to import again, else
+    for a :class:`FrameRange` of at least :data:`PROCESS_MIN_PIXELS` pixels (frames x
+    :func:`_pixels_per_frame`) on a machine with two or more cores, from a non-daemonic process whose main module is safe to import again, else
     ``thread``; ``process`` falls back to ``thread`` when ``frames`` cannot be sent to a process."""
     import multiprocessing
 
@@ -170,10 +175,20 @@ def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
     ok = isinstance(frames, FrameRange) and not multiprocessing.current_process().daemon and _picklable(frames)
     if mode == "process":
         return "process" if ok else "thread"
-    long_run = (total if total is not None else len(frames) if ok else 0) >= PROCESS_MIN_FRAMES
-    if ok and long_run and (os.cpu_count() or 1) >= 2 and _main_is_reimportable():
+    n = total if total is not None else len(frames) if ok else 0
+    long_run = ok and n * _pixels_per_frame(frames.dataset) >= PROCESS_MIN_PIXELS
+    if long_run and (os.cpu_count() or 1) >= 2 and _main_is_reimportable():
         return "process"
     return "thread"
+
+
+def _pixels_per_frame(dataset: Any) -> int:
+    """Pixels of one frame's images: the camera's ``width x height``, twice for a stereo pair or a
+    depth image (the sensor the dataset reads); a VGA image when the dataset does not say."""
+    cam = getattr(dataset, "camera", None)
+    w, h = getattr(cam, "width", None), getattr(cam, "height", None)
+    pixels = int(w) * int(h) if w and h else 640 * 480
+    return pixels * (1 if getattr(dataset, "sensor", "mono") == "mono" else 2)
 
 
 def _put_until_stopped(q, item, stop) -> bool:
@@ -309,9 +324,10 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     """Yield ``(frame, work(frame), seconds of work)`` for the frames of ``source``, read and
     worked on ahead in a child process (at most ``depth`` waiting).
 
-    The first ``head`` frames are read here instead, with no work done on them (result None), while
-    the child starts (a new interpreter takes about a second, in which the consumer would
-    otherwise idle); the child begins at the frame after them.
+    The first ``head`` frames are read here instead, by a thread as in :func:`prefetch` that also
+    does the ``work`` on them (balanced the same way), while the child starts (a new interpreter
+    takes about a second, in which the consumer would otherwise idle); the child begins at the
+    frame after them.
 
     With ``balance``, ``work`` is skipped (result None) for a frame the consumer is already
     waiting for (a shared flag it sets while blocked on an empty queue): the consumer then does
@@ -329,9 +345,8 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
 
     head = max(0, min(int(head), len(source)))
     rest = FrameRange(source.dataset, source.start + head, source.stop)
-    if len(rest) == 0:
-        for frame in source:
-            yield frame, None, 0.0
+    if len(rest) == 0:  # all head: no child
+        yield from _head_in_thread(source, work, depth, balance)
         return
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue(maxsize=max(1, depth))
@@ -345,8 +360,7 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
     starter, start_error = _start_in_thread(proc)
     try:
         if head:
-            for frame in source.dataset.frames(source.start, rest.start):
-                yield frame, None, 0.0
+            yield from _head_in_thread(FrameRange(source.dataset, source.start, rest.start), work, depth, balance)
         starter.join()
         if start_error:
             raise start_error[0]
@@ -361,6 +375,33 @@ def prefetch_process(source: FrameRange, work: Callable[[Any], Any] | None = Non
             yield msg[1], msg[2], msg[3]
     finally:
         _shut_down(proc, starter, q, stop, slots)
+
+
+class _Item:
+    """A frame on its way through :func:`_head_in_thread` with its ``work`` result (None: not done)."""
+
+    __slots__ = ("frame", "result", "seconds")
+
+    def __init__(self, frame: Any) -> None:
+        self.frame, self.result, self.seconds = frame, None, 0.0
+
+
+def _head_in_thread(head: FrameRange, work: Callable[[Any], Any] | None, depth: int,
+                    balance: bool) -> Iterator[tuple[Any, Any, float]]:
+    """``(frame, work(frame) or None, seconds)`` for the frames of ``head``, read and worked on ahead
+    in a thread (:func:`prefetch`, same balance)."""
+
+    def prepare(item: _Item) -> None:
+        t0 = time.perf_counter()
+        item.result = work(item.frame)
+        item.seconds = time.perf_counter() - t0
+
+    items = prefetch((_Item(f) for f in head), depth, prepare if work is not None else None, balance)
+    try:
+        for item in items:
+            yield item.frame, item.result, item.seconds
+    finally:
+        items.close()
 
 
 def _start_in_thread(proc) -> tuple[threading.Thread, list[BaseException]]:

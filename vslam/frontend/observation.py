@@ -134,6 +134,20 @@ def stereo_by_flow(
     return depth, u_right
 
 
+def stereo_pair_depth(frame, gray: np.ndarray, uv: np.ndarray, camera: PinholeCamera, depth_cfg,
+                      init_disparity: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`stereo_by_flow` of ``uv`` in ``frame``'s rectified pair (``gray``: its left image in gray,
+    the right one converted here) with the ``frontend.depth`` settings ``depth_cfg``: ``(depth,
+    u_right)``. Needs ``frame.image_right``."""
+    right = frame.image_right
+    if right.ndim == 3:
+        right = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+    d = depth_cfg
+    return stereo_by_flow(gray, right, uv, camera, d.stereo_max_depth_baselines, d.stereo_max_dy, d.min_depth,
+                          init_disparity, d.stereo_flow_window, d.stereo_flow_levels, d.stereo_flow_max_iter,
+                          d.stereo_flow_eps)
+
+
 def detect_mask(shape: tuple[int, int], uv: np.ndarray, radius: int) -> np.ndarray:
     """A detection mask that is 0 within ``radius`` pixels of existing points, 255 elsewhere."""
     mask = np.full(shape[:2], 255, np.uint8)

@@ -10,7 +10,8 @@ import numpy as np
 from vslam.datasets.frame import Frame
 from vslam.features.config import FeatureConfig
 from vslam.frontend.config import FrontendConfig
-from vslam.frontend.observation import Observation, klt_track, sample_depth, stereo_by_flow
+from vslam.frontend.observation import Observation, klt_track, sample_depth, stereo_pair_depth
+from vslam.frontend.prepare import Detection
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.geometry.lie import inv_se3
 from vslam.map.map import Map
@@ -82,6 +83,9 @@ class Observer:
     def detect(self, frame: Frame, gray: np.ndarray, mask: np.ndarray | None = None) -> Observation:
         """Detect keypoints (within ``mask``), as a fresh observation with no map points."""
         feats, self.prepared_feats = (self.prepared_feats if mask is None else None), None  # from prepare()
+        stereo = None
+        if isinstance(feats, Detection):  # with the stereo depth found ahead
+            feats, stereo = feats.features, feats.stereo
         if feats is None:
             feats = self.detector.detect(gray, mask) if mask is not None else self.detector.detect(gray)
         if self.cfg.association == "track" and len(feats) > self.cfg.klt.max_tracks:
@@ -100,7 +104,10 @@ class Observer:
             anchor_kf=np.full(n, -1, dtype=np.int64),
             anchor_idx=np.arange(n, dtype=np.int64),
         )
-        self.add_depth(frame, gray, obs)
+        if stereo is not None and self.sensor == "stereo" and len(stereo[0]) == n:
+            obs.depth, obs.u_right = stereo  # what add_depth finds for a fresh detection (no disparity guess)
+        else:
+            self.add_depth(frame, gray, obs)
         return obs
 
     def add_depth(self, frame: Frame, gray: np.ndarray, obs: Observation) -> None:
@@ -118,19 +125,10 @@ class Observer:
         elif self.sensor == "stereo":
             if frame.image_right is None:
                 raise DatasetError(f"frame {frame.index} ({frame.path}) has no right image but sensor is stereo")
-            right = frame.image_right
-            if right.ndim == 3:
-                import cv2
-
-                right = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
             d0 = None
             if obs.u_right is not None and len(obs.u_right) == n:
                 d0 = obs.uv[:, 0] - obs.u_right  # last frame's disparity as the initial guess
-            obs.depth, obs.u_right = stereo_by_flow(
-                gray, right, obs.uv, self.camera, cfg.depth.stereo_max_depth_baselines, cfg.depth.stereo_max_dy,
-                cfg.depth.min_depth, d0, cfg.depth.stereo_flow_window, cfg.depth.stereo_flow_levels,
-                cfg.depth.stereo_flow_max_iter, cfg.depth.stereo_flow_eps,
-            )
+            obs.depth, obs.u_right = stereo_pair_depth(frame, gray, obs.uv, self.camera, cfg.depth, d0)
         else:
             obs.depth = np.full(n, np.nan)
             obs.u_right = None

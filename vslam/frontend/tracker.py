@@ -167,9 +167,10 @@ class Tracker:
 
     def prepare(self, frame: Frame) -> None:
         """Work on ``frame`` that needs no tracking state (grayscale conversion and, with
-        ``association=match``, feature detection), safe to run in another thread ahead of
-        :meth:`track` (the runner's decoding thread calls it, see :func:`vslam.runner.run_sequence`).
-        Uses its own detector instance; :meth:`track` picks the result up by frame identity."""
+        ``association=match``, feature detection and the stereo depth of the features), safe to run
+        in another thread ahead of :meth:`track` (the runner's decoding thread calls it, see
+        :func:`vslam.runner.run_sequence`). Uses its own detector instance; :meth:`track` picks the
+        result up by frame identity."""
         t0 = time.perf_counter()
         gray, feats = self._preparer(frame)
         self.adopt_prepared(frame, gray, feats, time.perf_counter() - t0)
@@ -177,7 +178,7 @@ class Tracker:
     def preparer(self) -> FramePreparer:
         """A picklable copy of what :meth:`prepare` runs, to run it in another process; hand its
         result to :meth:`adopt_prepared`."""
-        return FramePreparer(self.fcfg, self.cfg.association)
+        return FramePreparer(self.fcfg, self.cfg.association, self.camera, self.sensor, self.cfg.depth)
 
     def adopt_prepared(self, frame: Frame, gray: np.ndarray, feats: Any, seconds: float = 0.0) -> None:
         """Take a :class:`FramePreparer` result for ``frame`` (computed elsewhere, e.g. by the
