@@ -155,14 +155,17 @@ class LocalProblemBuilder:
         """Per keyframe, its observations of the points flagged in ``member``: keyframe, point,
         keypoint index, undistorted pixel, sigma, virtual right coordinate (stereo), depth (RGB-D)."""
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
+        first = np.empty(n_rows + 1, np.int64)  # scratch: position of a point's first observation
         for kid in kf_ids:
             k = self.map.keyframes[kid]
             pid = k.point_ids
             sel = np.flatnonzero(member[np.where(pid >= 0, pid, n_rows)])
             if len(sel) == 0:
                 continue
-            _, first = np.unique(pid[sel], return_index=True)  # one observation per point and keyframe
-            sel = sel[np.sort(first)]
+            # one observation per point and keyframe, the first (the last write of a repeated index wins)
+            at = np.arange(len(sel))
+            first[pid[sel[::-1]]] = at[::-1]
+            sel = sel[first[pid[sel]] == at]
             cols["kf"].append(np.full(len(sel), kid, np.int64))
             cols["pt"].append(pid[sel])
             cols["idx"].append(sel)

@@ -70,8 +70,8 @@ class PointWriteback:
         ray = X - T[kf_row, :3, 3]
         dist = np.linalg.norm(ray, axis=1)
         unit = ray / np.maximum(dist, 1e-12)[:, None]
-        acc = np.zeros((problem.num_points, 3))
-        np.add.at(acc, pt_row, unit)
+        # per point the sum of its unit rays, in observation order (as np.add.at, faster)
+        acc = np.stack([np.bincount(pt_row, weights=unit[:, c], minlength=problem.num_points) for c in range(3)], axis=1)
         norm = np.linalg.norm(acc, axis=1)
         ok = good & (norm > 1e-9)
         ids = problem.pt_ids[ok]

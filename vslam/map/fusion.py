@@ -33,9 +33,14 @@ def apply_remap(keyframes: Iterable[KeyFrame], remap: np.ndarray, chain_rounds: 
     moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
     for _ in range(chain_rounds):
         remap[moved] = remap[remap[moved]]
-    for k in keyframes:
-        pid = k.point_ids
-        k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+    keyframes = list(keyframes)
+    if not keyframes:
+        return
+    # every keyframe at once: one gather over the concatenated ids, split back into new arrays
+    pid = np.concatenate([k.point_ids for k in keyframes])
+    out = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+    for k, ids in zip(keyframes, np.split(out, np.cumsum([len(k.point_ids) for k in keyframes[:-1]]))):
+        k.point_ids = ids
 
 
 def assign_observations(slam_map: "Map", kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:
