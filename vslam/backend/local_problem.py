@@ -45,6 +45,17 @@ def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray
     return np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
 
 
+def unique_rows(rows: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(rows, return_inverse=True)`` for ids in ``0 .. n_rows - 1``, by a flag and a
+    position table over the id range instead of a sort."""
+    flag = np.zeros(n_rows, dtype=bool)
+    flag[rows] = True
+    ids = np.flatnonzero(flag)
+    pos = np.empty(n_rows, np.int64)
+    pos[ids] = np.arange(len(ids))
+    return ids, pos[rows]
+
+
 def segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
     return [k for k in map_.keyframes.values() if k.segment == segment and not k.bad]
 
@@ -111,7 +122,7 @@ class LocalProblemBuilder:
             return None
         c = {k: np.concatenate(v) for k, v in cols.items()}
         # a point needs two observations, or one with depth / disparity, to be determined
-        pt_ids, inv = np.unique(c["pt"], return_inverse=True)
+        pt_ids, inv = unique_rows(c["pt"], n_rows)
         n_obs = np.bincount(inv, minlength=len(pt_ids))
         has3 = np.bincount(inv, weights=(np.isfinite(c["ur"]) | np.isfinite(c["d"])).astype(float),
                            minlength=len(pt_ids)) > 0

@@ -45,8 +45,8 @@ class Map:
         self.update_covisibility(kf.id)
 
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
-        """Recompute ``kf_id``'s links: one vectorized pass over every keyframe's observations
-        (all ``point_ids`` concatenated; a running count of the shared ones gives each weight)."""
+        """Recompute ``kf_id``'s links: per keyframe, the count of its ``point_ids`` this keyframe
+        observes (one gather each; ``-1``, no point, hits the flag array's last entry, ``False``)."""
         kf = self.keyframes[kf_id]
         mine = np.zeros(len(self.points) + 1, dtype=bool)  # the points this keyframe observes; [-1]: none
         mine[kf.observed_ids()] = True
@@ -54,11 +54,7 @@ class Map:
         others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
         if not others or not mine.any():
             return
-        allp = np.concatenate([o.point_ids for o in others])
-        allp[allp < 0] = -1
-        ends = np.cumsum([len(o.point_ids) for o in others])
-        running = np.concatenate(([0], np.cumsum(mine[allp])))
-        weights = running[ends] - running[ends - np.diff(ends, prepend=0)]
+        weights = np.array([np.count_nonzero(mine[o.point_ids]) for o in others], np.int64)
         for j in np.flatnonzero(weights >= min_weight):
             w = int(weights[j])
             links[others[j].id] = w
