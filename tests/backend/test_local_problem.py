@@ -36,3 +36,12 @@ def test_gather_keeps_each_points_first_observation_per_keyframe():
         _, first = np.unique(pid[sel], return_index=True)
         assert np.array_equal(idx, sel[np.sort(first)]) and np.array_equal(pt, pid[idx])
     assert len(cols["idx"][2]) == np.count_nonzero(kf.point_ids >= 0) - 40
+
+
+def test_row_norms_is_np_linalg_norm_to_the_last_bit():
+    from vslam.backend.local_problem import row_norms
+
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(20000, 3)) * 10.0 ** rng.uniform(-6, 6, (20000, 1))
+    assert np.array_equal(row_norms(a), np.linalg.norm(a, axis=1))
+    assert np.array_equal(row_norms(a - a[::-1]), np.linalg.norm(a - a[::-1], axis=1))
