@@ -91,11 +91,11 @@ class LocalProblemBuilder:
         window = sorted(set(recent) | set(cov) | {kf.id})
         # constant: covisible keyframes outside the window (they observe window points), strongest first
         weight: dict[int, int] = {}
-        in_window = set(window)
+        outside = good.difference(window)
         for k in window:
-            for o, w in self.map.covisibility.get(k, {}).items():
-                if o in good and o not in in_window:
-                    weight[o] = weight.get(o, 0) + w
+            links = self.map.covisibility.get(k, {})
+            for o in links.keys() & outside:  # sums of ints, sorted below by a total order: any visit order
+                weight[o] = weight.get(o, 0) + links[o]
         fixed = sorted(weight, key=lambda o: (-weight[o], o))[: cfg.max_fixed_keyframes]
         if first in window and len(window) > 1:  # the segment's origin never moves
             window.remove(first)
