@@ -67,3 +67,38 @@ def test_limit_points_keeps_local_window():
     assert m.n_points == 5
     kept = m.keyframes[1].point_ids
     assert np.all(kept >= 0)  # the local keyframe's points survive
+
+
+def _update_covisibility_reference(m: Map, kf_id: int) -> None:
+    """``Map.update_covisibility`` as the per-keyframe ``observed_ids`` / ``bincount`` version did it."""
+    kf = m.keyframes[kf_id]
+    mine = np.zeros(len(m.points), dtype=bool)
+    mine[kf.observed_ids()] = True
+    links = m.covisibility.setdefault(kf_id, {})
+    others = [o for o in m.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
+    obs = [o.observed_ids() for o in others]
+    owner = np.repeat(np.arange(len(others)), [len(a) for a in obs])
+    weights = np.bincount(owner[mine[np.concatenate(obs)]], minlength=len(others))
+    for j in np.flatnonzero(weights >= 1):
+        links[others[j].id] = int(weights[j])
+        m.covisibility.setdefault(others[j].id, {})[kf_id] = int(weights[j])
+
+
+def test_update_covisibility_matches_the_reference_counts_and_order():
+    import copy
+
+    from tests.map._builders import large_map
+
+    m = large_map(seed=3, n_keyframes=40, n_keypoints=300, n_points=6000, n_covisible=5)
+    m.keyframes[7].bad = True
+    m.keyframes[9].segment = 1
+    m.keyframes[12].point_ids[:50] = -1
+    m.covisibility = {k: {} for k in m.keyframes}
+    ref = copy.deepcopy(m)
+    for k in (0, 12, 25, 39, 12):
+        m.update_covisibility(k)
+        _update_covisibility_reference(ref, k)
+    # same weights in the same insertion order (Map.covisible breaks ties by it)
+    assert [(k, list(v.items())) for k, v in m.covisibility.items()] == \
+        [(k, list(v.items())) for k, v in ref.covisibility.items()]
+    assert len(m.covisibility[12]) > 20 and 7 not in m.covisibility[12] and 9 not in m.covisibility[12]

@@ -57,14 +57,16 @@ class NeighbourFusion:
         self.counts["fused_points"] = self.counts.get("fused_points", 0) + n_fused
 
     def _fuse_into(self, kf: KeyFrame, pts: np.ndarray, remap: np.ndarray) -> int:
-        """Match points ``pts`` into keyframe ``kf``; returns the number of points fused away."""
+        """Match points ``pts`` (sorted, unique) into keyframe ``kf``; returns the number of points fused away."""
         from vslam.map.matching import guided_match, project_local_points
 
         store = self.map.points
         pts = pts[store.alive[pts]]
         if len(pts) == 0 or len(kf.uv_undist) == 0:
             return 0
-        pts = unique_ids(len(store), pts, exclude=kf.point_ids[kf.point_ids >= 0])
+        observed = np.zeros(len(store) + 1, dtype=bool)  # kf's points ([-1]: a keypoint without one)
+        observed[kf.point_ids] = True
+        pts = pts[~observed[pts]]  # as unique_ids(n, pts, exclude=...) for sorted unique pts, no id-range scan
         vis, uv, z = project_local_points(store, pts, kf.T_cam_world, self.camera)
         if len(vis) == 0:
             return 0

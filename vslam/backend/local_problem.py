@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam.backend.config import BackendConfig
+from vslam.backend.local_problem_kernels import member_keypoints
 from vslam.backend.problem import BAProblem
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
@@ -26,6 +27,12 @@ class ProblemContext:
     left_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # monocular points kept out: (pt, kf, uv) per observation
 
 
+def row_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean norm of each row of ``a (M, 3)``: ``np.linalg.norm(a, axis=1)`` to the last bit (its
+    squares summed in the same order, x, y, z), without the generic reduction (~5x faster)."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
+
+
 def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray, n_points: int) -> np.ndarray:
     """Per point, the largest angle (degrees) between its first observation's viewing ray and the
     others (a lower bound of the largest pairwise parallax, at least half of it; 0 for one observation).
@@ -36,13 +43,24 @@ def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray
     too little), vectorized over observations.
     """
     ray = X_world - centres
-    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    ray /= np.maximum(row_norms(ray), 1e-12)[:, None]
     first = np.full(n_points, -1, np.int64)
     first[point[::-1]] = np.arange(len(point))[::-1]  # the last write wins: the first observation
     cos = np.einsum("ij,ij->i", ray, ray[first[point]])
     min_cos = np.ones(n_points)
     np.minimum.at(min_cos, point, cos)
     return np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
+
+
+def unique_rows(rows: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(rows, return_inverse=True)`` for ids in ``0 .. n_rows - 1``, by a flag and a
+    position table over the id range instead of a sort."""
+    flag = np.zeros(n_rows, dtype=bool)
+    flag[rows] = True
+    ids = np.flatnonzero(flag)
+    pos = np.empty(n_rows, np.int64)
+    pos[ids] = np.arange(len(ids))
+    return ids, pos[rows]
 
 
 def segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
@@ -73,10 +91,11 @@ class LocalProblemBuilder:
         window = sorted(set(recent) | set(cov) | {kf.id})
         # constant: covisible keyframes outside the window (they observe window points), strongest first
         weight: dict[int, int] = {}
+        outside = good.difference(window)
         for k in window:
-            for o, w in self.map.covisibility.get(k, {}).items():
-                if o in good and o not in window:
-                    weight[o] = weight.get(o, 0) + w
+            links = self.map.covisibility.get(k, {})
+            for o in links.keys() & outside:  # sums of ints, sorted below by a total order: any visit order
+                weight[o] = weight.get(o, 0) + links[o]
         fixed = sorted(weight, key=lambda o: (-weight[o], o))[: cfg.max_fixed_keyframes]
         if first in window and len(window) > 1:  # the segment's origin never moves
             window.remove(first)
@@ -111,7 +130,7 @@ class LocalProblemBuilder:
             return None
         c = {k: np.concatenate(v) for k, v in cols.items()}
         # a point needs two observations, or one with depth / disparity, to be determined
-        pt_ids, inv = np.unique(c["pt"], return_inverse=True)
+        pt_ids, inv = unique_rows(c["pt"], n_rows)
         n_obs = np.bincount(inv, minlength=len(pt_ids))
         has3 = np.bincount(inv, weights=(np.isfinite(c["ur"]) | np.isfinite(c["d"])).astype(float),
                            minlength=len(pt_ids)) > 0
@@ -155,14 +174,14 @@ class LocalProblemBuilder:
         """Per keyframe, its observations of the points flagged in ``member``: keyframe, point,
         keypoint index, undistorted pixel, sigma, virtual right coordinate (stereo), depth (RGB-D)."""
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
-        for kid in kf_ids:
+        stamp = np.full(n_rows + 1, -1, np.int64)  # scratch of member_keypoints: the keyframe that took a point
+        for tag, kid in enumerate(kf_ids):
             k = self.map.keyframes[kid]
             pid = k.point_ids
-            sel = np.flatnonzero(member[np.where(pid >= 0, pid, n_rows)])
+            # one observation per point and keyframe, the first
+            sel = member_keypoints(np.asarray(pid, np.int64), member, stamp, tag)
             if len(sel) == 0:
                 continue
-            _, first = np.unique(pid[sel], return_index=True)  # one observation per point and keyframe
-            sel = sel[np.sort(first)]
             cols["kf"].append(np.full(len(sel), kid, np.int64))
             cols["pt"].append(pid[sel])
             cols["idx"].append(sel)

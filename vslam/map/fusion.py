@@ -29,13 +29,13 @@ def new_remap(n_points: int) -> np.ndarray:
 
 def apply_remap(keyframes: Iterable[KeyFrame], remap: np.ndarray, chain_rounds: int = 4) -> None:
     """Follow merge chains (``a -> b -> c``) to the final survivor, ``chain_rounds`` steps, then
-    rewrite each keyframe's ``point_ids`` through ``remap`` (``-1`` stays ``-1``)."""
+    rewrite each keyframe's ``point_ids`` through ``remap`` (``-1`` stays ``-1``: ``remap`` comes from
+    :func:`new_remap`, whose last entry is ``-1`` and stays so, as merges never name ``-1``)."""
     moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
     for _ in range(chain_rounds):
         remap[moved] = remap[remap[moved]]
     for k in keyframes:
-        pid = k.point_ids
-        k.point_ids = np.where(pid >= 0, remap[np.where(pid >= 0, pid, -1)], -1)
+        k.point_ids = remap[k.point_ids]  # -1 (no point, KeyFrame.point_ids) -> remap[-1] == -1
 
 
 def assign_observations(slam_map: "Map", kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:

@@ -45,18 +45,16 @@ class Map:
         self.update_covisibility(kf.id)
 
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
-        """Recompute ``kf_id``'s links: one vectorized pass over every keyframe's observations."""
+        """Recompute ``kf_id``'s links: per keyframe, the count of its ``point_ids`` this keyframe
+        observes (one gather each; ``-1``, no point, hits the flag array's last entry, ``False``)."""
         kf = self.keyframes[kf_id]
-        mine = np.zeros(len(self.points), dtype=bool)  # the points this keyframe observes
+        mine = np.zeros(len(self.points) + 1, dtype=bool)  # the points this keyframe observes; [-1]: none
         mine[kf.observed_ids()] = True
         links = self.covisibility.setdefault(kf_id, {})
         others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
         if not others or not mine.any():
             return
-        obs = [o.observed_ids() for o in others]
-        owner = np.repeat(np.arange(len(others)), [len(a) for a in obs])
-        shared = mine[np.concatenate(obs)]
-        weights = np.bincount(owner[shared], minlength=len(others))
+        weights = np.array([np.count_nonzero(mine[o.point_ids]) for o in others], np.int64)
         for j in np.flatnonzero(weights >= min_weight):
             w = int(weights[j])
             links[others[j].id] = w
