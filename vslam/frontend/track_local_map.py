@@ -47,7 +47,8 @@ class LocalMapTracker:
         t0 = time.perf_counter()
         vis_ids, first, tree = np.zeros(0, np.int64), np.zeros(0, np.int64), None
         if cfg.association == "match":
-            tree = cKDTree(obs.uv_undist) if len(obs) else None
+            # binary descriptors match through the grid kernel (map.matching_kernels): no KD-tree
+            tree = cKDTree(obs.uv_undist) if len(obs) and not self.binary else None
             vis_ids, first, T_cw_pred = self._first_pass(obs, T_cw_pred, local_ids, prev, relocalize, tree)
         self.timers["association"] += time.perf_counter() - t0
         t0 = time.perf_counter()
