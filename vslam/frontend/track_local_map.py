@@ -21,6 +21,7 @@ from vslam.frontend.observation import Observation
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.geometry.lie import inv_se3
 from vslam.map.map import Map
+from vslam.map import matching_kernels
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.map.mappoint import unique_ids
 
@@ -39,6 +40,7 @@ class LocalMapTracker:
         self.timers = timers
         self.bf = stereo_bf(camera, sensor)
         self.rng = np.random.default_rng(0)
+        matching_kernels.warm()  # the compiled matching kernels load now, not on the first frame
 
     def track(self, obs: Observation, T_world_pred: np.ndarray | None, local_ids: np.ndarray,
               prev: Observation | None, relocalize: bool) -> tuple[np.ndarray | None, int]:
