@@ -63,3 +63,27 @@ def test_linearize_and_inliers_equal_numpy_with_nan_and_behind(monkeypatch):
     np.testing.assert_array_equal(r1, r2)
     np.testing.assert_array_equal(in1, in2)
     assert 150 < in1.sum() < 300
+
+
+def test_reproj_inliers_and_solve_pnp_equal_numpy(monkeypatch):
+    rng = np.random.default_rng(9)
+    for n in (30, 60, 500):
+        T0, X, uv, _, _ = _problem(rng, n, False)
+        X[0] = [0.0, 0.0, 0.0]  # at the camera centre of the identity: z = 0 under T = I
+        got = [pnp._reproj_inliers(T0, K, X, uv, None, 3.0), pnp.solve_pnp(X, uv, K, None, T0, 3.0)]
+        got.append(pnp.solve_pnp(X, uv, K, None, None, 3.0))
+        monkeypatch.setattr(pnp, "USE_KERNELS", False)
+        want = [pnp._reproj_inliers(T0, K, X, uv, None, 3.0), pnp.solve_pnp(X, uv, K, None, T0, 3.0)]
+        want.append(pnp.solve_pnp(X, uv, K, None, None, 3.0))
+        monkeypatch.setattr(pnp, "USE_KERNELS", True)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_array_equal(g[0], w[0])
+            np.testing.assert_array_equal(g[1], w[1])
+        assert got[1][1].sum() > 0.6 * n
+    eye = np.eye(4)
+    got = pnp._reproj_inliers(eye, K, np.array([[0.0, 0, 0], [1, 1, -2], [np.nan, 0, 1]]), np.zeros((3, 2)), None, 9.0)
+    monkeypatch.setattr(pnp, "USE_KERNELS", False)
+    with np.errstate(all="ignore"):
+        want = pnp._reproj_inliers(eye, K, np.array([[0.0, 0, 0], [1, 1, -2], [np.nan, 0, 1]]), np.zeros((3, 2)), None, 9.0)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])

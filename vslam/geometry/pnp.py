@@ -51,6 +51,9 @@ def project_points(
 
 
 def _reproj_inliers(T, K, X, x, dist, threshold_px):
+    if USE_KERNELS and dist is None and X.dtype == x.dtype == K.dtype == np.float64:
+        T = np.asarray(T, float)
+        return pnp_kernels.reproj_inliers(X @ T[:3, :3].T + T[:3, 3], x, K, float(threshold_px))
     uv, z = project_points(T, K, X, dist)
     err = np.linalg.norm(uv - x, axis=1)
     return (z > 0) & np.isfinite(err) & (err < threshold_px), err

@@ -1,11 +1,13 @@
-"""Compiled (numba) per-point kernels of :func:`vslam.geometry.pnp.refine_pose`.
+"""Compiled (numba) per-point kernels of :func:`vslam.geometry.pnp.refine_pose` and of the
+inlier selection of :func:`vslam.geometry.pnp.solve_pnp`.
 
 :func:`linearize` and :func:`inliers` compute exactly what ``_PoseResiduals.linearize`` /
 ``_PoseResiduals.inliers`` computed with NumPy, from the same camera points ``Xc = R X + t`` (still
 NumPy's matrix product), in the same floating-point operation order term by term (``np.maximum`` /
 ``np.where`` NaN semantics included), so the pose optimization stays bit-identical; only the ~40
 array temporaries per Gauss-Newton iteration are gone. numba does not contract ``a * b + c`` into
-fused multiply-adds unless ``fastmath`` is on, which these kernels never set.
+fused multiply-adds unless ``fastmath`` is on, which these kernels never set; ``error_model="numpy"``:
+a division by zero gives inf/NaN as in NumPy.
 Equations: ORB-SLAM2's pose optimization (Mur-Artal & Tardos 2017, eq. (2)-(3)), see ``refine_pose``.
 """
 from __future__ import annotations
@@ -14,13 +16,13 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _nanmax(a, b):  # pragma: no cover - compiled
     """``np.maximum(a, b)`` for a scalar ``b``: NaN propagates."""
     return a if (a >= b or a != a) else b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def linearize(Xc, u_obs, v_obs, ur, has_r, info, delta, inl, fx, fy, cx, cy, bf, any_r, A, r):  # pragma: no cover
     """Fill the Huber-weighted Jacobian ``A (6, m n)`` and residuals ``r (m n,)`` (rows
     ``u_1..u_n, v_1..v_n[, ur_1..ur_n]``) from the camera points ``Xc (3, n)``."""
@@ -74,7 +76,7 @@ def linearize(Xc, u_obs, v_obs, ur, has_r, info, delta, inl, fx, fy, cx, cy, bf,
             r[j] = rs * swr
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def inliers(Xc, u_obs, v_obs, ur, has_r, info, chi2, fx, fy, cx, cy, bf):  # pragma: no cover - compiled
     """Chi-square test of the information-weighted squared reprojection errors (``(n,)`` bool)."""
     n = u_obs.shape[0]
@@ -96,6 +98,25 @@ def inliers(Xc, u_obs, v_obs, ur, has_r, info, chi2, fx, fy, cx, cy, bf):  # pra
     return out
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def reproj_inliers(X_cam, x, K, threshold_px):  # pragma: no cover - compiled
+    """``(mask, err)`` of ``pnp._reproj_inliers`` without distortion from the camera points
+    ``X_cam (N, 3)``: pixel error ``|K [x / z, y / z] - x|`` and ``z > 0, finite, err < threshold``."""
+    n = X_cam.shape[0]
+    mask = np.empty(n, np.bool_)
+    err = np.empty(n)
+    for i in range(n):
+        z = X_cam[i, 2]
+        xn = X_cam[i, 0] / z
+        yn = X_cam[i, 1] / z
+        du = (K[0, 0] * xn + K[0, 1] * yn + K[0, 2]) - x[i, 0]
+        dv = (K[1, 1] * yn + K[1, 2]) - x[i, 1]
+        e = np.sqrt(du * du + dv * dv)
+        err[i] = e
+        mask[i] = (z > 0) and np.isfinite(e) and (e < threshold_px)
+    return mask, err
+
+
 def warm() -> None:
     """Call each kernel once on tiny inputs (loads the cached machine code)."""
     Xc = np.array([[0.1], [0.2], [2.0]])
@@ -105,3 +126,4 @@ def warm() -> None:
     r = np.empty(3)
     linearize(Xc, one, one, one, has_r, one, one, has_r, 1.0, 1.0, 0.0, 0.0, 0.1, True, A, r)
     inliers(Xc, one, one, one, has_r, one, one, 1.0, 1.0, 0.0, 0.0, 0.1)
+    reproj_inliers(np.ascontiguousarray(Xc.T), np.zeros((1, 2)), np.eye(3), 2.0)

@@ -16,7 +16,7 @@ They return exactly what the NumPy/SciPy code they replace returned:
 - :func:`project_rest` is the elementwise part of the projection after the NumPy matrix product.
 
 numba does not contract ``a * b + c`` into fused multiply-adds unless ``fastmath`` is on, which
-these kernels never set.
+these kernels never set; ``error_model="numpy"``: a division by zero gives inf/NaN as in NumPy.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ _M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
 _H01 = np.uint64(0x0101010101010101)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _popcount64(x):  # pragma: no cover - compiled
     x = x - ((x >> np.uint64(1)) & _M1)
     x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
@@ -37,7 +37,7 @@ def _popcount64(x):  # pragma: no cover - compiled
     return (x * _H01) >> np.uint64(56)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
     """``(idx (P, k) int64, fallback (P,) bool, ok)``: the ``k`` nearest keypoints ``kp (N, 2)`` of
     each ``proj (P, 2)`` with squared distance ``< radius**2`` (missing: ``N``), nearest first;
@@ -71,9 +71,14 @@ def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
     for c in range(nx * ny):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
+    order = np.empty(n, np.int64)  # keypoints in cell order, with their coordinates beside them
+    su = np.empty(n)
+    sv = np.empty(n)
     for i in range(n):
-        order[fill[cell[i]]] = i
+        s = fill[cell[i]]
+        order[s] = i
+        su[s] = kp[i, 0]
+        sv[s] = kp[i, 1]
         fill[cell[i]] += 1
     r2 = radius * radius
     bd = np.empty(k + 1)
@@ -93,9 +98,8 @@ def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
             for cx in range(x0, x1 + 1):
                 c = cy * nx + cx
                 for s in range(start[c], start[c + 1]):
-                    i = order[s]
-                    du = kp[i, 0] - qu
-                    dv = kp[i, 1] - qv
+                    du = su[s] - qu
+                    dv = sv[s] - qv
                     d2 = du * du + dv * dv
                     if d2 < r2 and (cnt <= k or d2 < bd[k]):
                         # insertion into the sorted top k + 1 (when full, the last one drops out)
@@ -106,7 +110,7 @@ def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
                             bi[j] = bi[j - 1]
                             j -= 1
                         bd[j] = d2
-                        bi[j] = i
+                        bi[j] = order[s]
         for j in range(1, cnt):
             if bd[j] == bd[j - 1]:
                 fallback[p] = True
@@ -115,7 +119,7 @@ def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
     return idx, fallback, True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def select_matches(idx, n, free, map_desc, kp_desc, max_distance, use_max, ratio, use_ratio):  # pragma: no cover
     """``(m_idx, kp_idx, distance float32)`` of :func:`vslam.map.matching.guided_match` from the
     candidate table ``idx (P, k)`` (``n``: none), keypoint mask ``free (N,)`` and ``uint64``-word
@@ -171,7 +175,7 @@ def select_matches(idx, n, free, map_desc, kp_desc, max_distance, use_max, ratio
     return m_out, k_out, d_out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def project_rest(Xc, X, ids, fx, fy, cx, cy, umax, vmax, margin, centre, min_distance, max_distance, normal,
                  max_view_angle_cos, check_distance):  # pragma: no cover - compiled
     """``(keep (M,) bool, u (M,), v (M,))`` of :func:`vslam.map.matching.project_local_points` from
