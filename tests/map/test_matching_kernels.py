@@ -52,6 +52,15 @@ def test_knn_grid_radius_is_strict():
     assert list(idx[0]) == [1, 2] and not fallback[0]
 
 
+def test_knn_grid_declines_non_finite_keypoints():
+    """The grid leaves non-finite keypoints to the KD-tree, which rejects them as before."""
+    kp = np.array([[1.0, 1.0], [np.nan, 2.0], [3.0, 3.0]])
+    assert not matching_kernels.knn_grid(np.zeros((1, 2)), kp, 5.0, 2)[2]
+    desc = np.arange(96, dtype=np.uint8).reshape(3, 32)
+    with pytest.raises(ValueError, match="finite"):
+        guided_match(np.array([[2.0, 2.0]]), desc[2:], kp, desc, 5.0, True, 64.0, 0.9)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_guided_match_kernels_equal_reference(monkeypatch, seed):
     rng = np.random.default_rng(seed)

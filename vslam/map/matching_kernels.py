@@ -38,30 +38,10 @@ def _popcount64(x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
-    """``(idx (P, k) int64, fallback (P,) bool, ok)``: the ``k`` nearest keypoints ``kp (N, 2)`` of
-    each ``proj (P, 2)`` with squared distance ``< radius**2`` (missing: ``N``), nearest first;
-    ``fallback`` marks rows with a distance tie among the first ``k + 1`` or a non-finite query;
-    ``ok`` is False (nothing computed) when the grid would be too large."""
+def _grid(kp, umin, vmin, cs, nx, ny):  # pragma: no cover - compiled
+    """Counting sort of the keypoints into ``nx * ny`` cells of ``cs`` pixels: ``(start (cells + 1),
+    order, u, v)`` with cell ``c``'s keypoints at ``start[c]:start[c + 1]`` (ascending index)."""
     n = kp.shape[0]
-    p_all = proj.shape[0]
-    idx = np.full((p_all, k), n, np.int64)
-    fallback = np.zeros(p_all, np.bool_)
-    umin, vmin, umax, vmax = kp[0, 0], kp[0, 1], kp[0, 0], kp[0, 1]
-    for i in range(n):
-        umin = min(umin, kp[i, 0])
-        umax = max(umax, kp[i, 0])
-        vmin = min(vmin, kp[i, 1])
-        vmax = max(vmax, kp[i, 1])
-    cs = radius
-    if not (cs > 0.0 and np.isfinite(cs) and np.isfinite(umax - umin) and np.isfinite(vmax - vmin)):
-        return idx, fallback, False
-    fx = (umax - umin) / cs
-    fy = (vmax - vmin) / cs
-    if fx > 4096.0 or fy > 4096.0 or (fx + 1.0) * (fy + 1.0) > 4.0 * n + 65536.0:
-        return idx, fallback, False
-    nx = int(fx) + 1
-    ny = int(fy) + 1
     cell = np.empty(n, np.int64)
     start = np.zeros(nx * ny + 1, np.int64)
     for i in range(n):
@@ -80,6 +60,37 @@ def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
         su[s] = kp[i, 0]
         sv[s] = kp[i, 1]
         fill[cell[i]] += 1
+    return start, order, su, sv
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def knn_grid(proj, kp, radius, k):  # pragma: no cover - compiled
+    """``(idx (P, k) int64, fallback (P,) bool, ok)``: the ``k`` nearest keypoints ``kp (N, 2)`` of
+    each ``proj (P, 2)`` with squared distance ``< radius**2`` (missing: ``N``), nearest first;
+    ``fallback`` marks rows with a distance tie among the first ``k + 1`` or a non-finite query;
+    ``ok`` is False (nothing computed) when the grid would be too large or a keypoint is not finite."""
+    n = kp.shape[0]
+    p_all = proj.shape[0]
+    idx = np.full((p_all, k), n, np.int64)
+    fallback = np.zeros(p_all, np.bool_)
+    umin, vmin, umax, vmax = kp[0, 0], kp[0, 1], kp[0, 0], kp[0, 1]
+    for i in range(n):
+        if not (np.isfinite(kp[i, 0]) and np.isfinite(kp[i, 1])):
+            return idx, fallback, False  # the KD-tree answers for all rows
+        umin = min(umin, kp[i, 0])
+        umax = max(umax, kp[i, 0])
+        vmin = min(vmin, kp[i, 1])
+        vmax = max(vmax, kp[i, 1])
+    cs = radius
+    if not (cs > 0.0 and np.isfinite(cs) and np.isfinite(umax - umin) and np.isfinite(vmax - vmin)):
+        return idx, fallback, False
+    fx = (umax - umin) / cs
+    fy = (vmax - vmin) / cs
+    if fx > 4096.0 or fy > 4096.0 or (fx + 1.0) * (fy + 1.0) > 4.0 * n + 65536.0:
+        return idx, fallback, False
+    nx = int(fx) + 1
+    ny = int(fy) + 1
+    start, order, su, sv = _grid(kp, umin, vmin, cs, nx, ny)
     r2 = radius * radius
     bd = np.empty(k + 1)
     bi = np.empty(k + 1, np.int64)
