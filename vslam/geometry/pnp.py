@@ -19,9 +19,12 @@ import cv2
 import numpy as np
 
 from vslam.errors import GeometryError
+from vslam.geometry import pnp_kernels
 from vslam.geometry.lie import make_T
 
 log = logging.getLogger(__name__)
+
+USE_KERNELS = True  # refine_pose's per-point work by pnp_kernels (identical results); False: NumPy
 
 _FLAGS = {"p3p": "SOLVEPNP_P3P", "ap3p": "SOLVEPNP_AP3P", "epnp": "SOLVEPNP_EPNP", "sqpnp": "SOLVEPNP_SQPNP"}
 
@@ -48,6 +51,9 @@ def project_points(
 
 
 def _reproj_inliers(T, K, X, x, dist, threshold_px):
+    if USE_KERNELS and dist is None and X.dtype == x.dtype == K.dtype == np.float64:
+        T = np.asarray(T, float)
+        return pnp_kernels.reproj_inliers(X @ T[:3, :3].T + T[:3, 3], x, K, float(threshold_px))
     uv, z = project_points(T, K, X, dist)
     err = np.linalg.norm(uv - x, axis=1)
     return (z > 0) & np.isfinite(err) & (err < threshold_px), err
@@ -248,12 +254,12 @@ class _PoseResiduals:
             Xt=np.ascontiguousarray(np.asarray(X_world, float).T),  # (3, n): rows x, y, z
             u_obs=np.ascontiguousarray(uv[:, 0], dtype=float),
             v_obs=np.ascontiguousarray(uv[:, 1], dtype=float),
-            ur=np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0),
+            ur=np.zeros(n) if u_right is None else np.where(has_r, u_right, 0.0).astype(float),
             has_r=has_r,
             info=np.ones(n) if sigma is None else 1.0 / np.asarray(sigma, float) ** 2,
             delta=np.where(has_r, np.sqrt(CHI2_3DOF), np.sqrt(CHI2_2DOF)),
             chi2=np.where(has_r, CHI2_3DOF, CHI2_2DOF),
-            fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], bf=bf,
+            fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]), bf=float(bf),
         )
 
     def project(self, T: np.ndarray):
@@ -266,6 +272,11 @@ class _PoseResiduals:
     def linearize(self, T: np.ndarray, inl: np.ndarray, A: np.ndarray, r: np.ndarray, any_r: bool) -> None:
         """Fill the Huber-weighted Jacobian ``A (6, m n)`` and residuals ``r (m n,)`` at ``T``
         (rows: ``u_1..u_n, v_1..v_n[, ur_1..ur_n]``); outliers and points behind get weight 0."""
+        if USE_KERNELS:
+            Xc = T[:3, :3] @ self.Xt + T[:3, 3:4]
+            pnp_kernels.linearize(Xc, self.u_obs, self.v_obs, self.ur, self.has_r, self.info, self.delta, inl,
+                                  self.fx, self.fy, self.cx, self.cy, self.bf, any_r, A, r)
+            return
         n = len(self.u_obs)
         fx, fy, bf, has_r = self.fx, self.fy, self.bf, self.has_r
         Xc, z, iz, u_hat, v_hat = self.project(T)
@@ -292,6 +303,9 @@ class _PoseResiduals:
 
     def inliers(self, T: np.ndarray) -> np.ndarray:
         """Chi-square test of the (information-weighted) squared reprojection errors at ``T``."""
+        if USE_KERNELS:
+            return pnp_kernels.inliers(T[:3, :3] @ self.Xt + T[:3, 3:4], self.u_obs, self.v_obs, self.ur,
+                                       self.has_r, self.info, self.chi2, self.fx, self.fy, self.cx, self.cy, self.bf)
         Xc, z, iz, u_hat, v_hat = self.project(T)
         e2 = (u_hat - self.u_obs) ** 2 + (v_hat - self.v_obs) ** 2
         e2 += np.where(self.has_r, ((u_hat - self.bf / z) - self.ur) ** 2, 0.0)

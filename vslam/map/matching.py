@@ -11,7 +11,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vslam.geometry.camera import PinholeCamera
+from vslam.map import matching_kernels
 from vslam.map.mappoint import MapPointStore
+
+USE_KERNELS = True  # the compiled kernels (identical results); False: the NumPy/SciPy reference
 
 
 def project_local_points(
@@ -33,6 +36,12 @@ def project_local_points(
     X = points.position[ids]
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
     Xc = X @ R.T + t
+    if _compiled_projection(points, Xc):
+        keep, u, v = matching_kernels.project_rest(
+            Xc, X, ids, float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
+            float(camera.width - 1 - margin), float(camera.height - 1 - margin), float(margin), -R.T @ t,
+            points.min_distance, points.max_distance, points.normal, float(max_view_angle_cos), check_distance)
+        return ids[keep], np.stack([u[keep], v[keep]], axis=1), Xc[keep, 2]
     z = Xc[:, 2]
     ok = z > 1e-3
     zs = np.where(ok, z, 1.0)
@@ -96,8 +105,15 @@ def guided_match(
     empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, np.float32))
     if len(proj_uv) == 0 or len(kp_uv) == 0:
         return empty
-    tree = kp_tree if kp_tree is not None else cKDTree(kp_uv)
     k = min(k, len(kp_uv))
+    if binary and USE_KERNELS and map_desc.dtype == np.uint8 and kp_desc.dtype == np.uint8:
+        idx = _knn(proj_uv, kp_uv, radius, k, kp_tree)
+        free = np.ones(len(kp_uv), bool) if kp_free is None else np.asarray(kp_free, bool)
+        return matching_kernels.select_matches(
+            idx, len(kp_uv), free, _words(map_desc), _words(kp_desc),
+            np.float32(np.inf if max_distance is None else max_distance), max_distance is not None,
+            np.float32(ratio), ratio < 1.0)
+    tree = kp_tree if kp_tree is not None else cKDTree(kp_uv)
     _, idx = tree.query(proj_uv, k=k, distance_upper_bound=radius)
     idx = idx.reshape(len(proj_uv), k)
     valid = idx < len(kp_uv)
@@ -127,6 +143,33 @@ def guided_match(
     first = np.ones(len(kp_idx), dtype=bool)
     first[1:] = kp_idx[1:] != kp_idx[:-1]
     return m_idx[first], kp_idx[first], d[first]
+
+
+def _compiled_projection(points: MapPointStore, Xc: np.ndarray) -> bool:
+    """Whether :func:`matching_kernels.project_rest` applies (float64 arrays, as the store keeps)."""
+    return USE_KERNELS and all(a.dtype == np.float64 for a in (Xc, points.position, points.normal,
+                                                               points.min_distance, points.max_distance))
+
+
+def _knn(proj_uv: np.ndarray, kp_uv: np.ndarray, radius: float, k: int, kp_tree: cKDTree | None) -> np.ndarray:
+    """``cKDTree(kp_uv).query(proj_uv, k, distance_upper_bound=radius)[1]`` as a ``(P, k)`` table, by
+    the grid kernel; rows it cannot decide (distance ties) by the KD-tree."""
+    proj = np.ascontiguousarray(proj_uv, dtype=np.float64)
+    kp = np.ascontiguousarray(kp_uv, dtype=np.float64)
+    idx, fallback, ok = matching_kernels.knn_grid(proj, kp, float(radius), k)
+    rows = np.flatnonzero(fallback) if ok else np.arange(len(proj))
+    if len(rows):
+        tree = kp_tree if kp_tree is not None else cKDTree(kp)
+        idx[rows] = tree.query(proj[rows], k=k, distance_upper_bound=radius)[1].reshape(len(rows), k)
+    return idx
+
+
+def _words(desc: np.ndarray) -> np.ndarray:
+    """Binary descriptors as ``uint64`` words (zero bytes appended: the Hamming distance is unchanged)."""
+    d = np.ascontiguousarray(desc, dtype=np.uint8)
+    if d.shape[1] % 8:
+        d = np.pad(d, ((0, 0), (0, 8 - d.shape[1] % 8)))
+    return d.view(np.uint64)
 
 
 def _sort_pairs(group: np.ndarray, d: np.ndarray) -> np.ndarray:
