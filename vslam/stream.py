@@ -44,6 +44,11 @@ log = logging.getLogger(__name__)
 # Modules of compiled kernels, each with ``warm()``: add a new kernel module here.
 KERNEL_MODULES: tuple[str, ...] = (
     "vslam.backend.schur_kernels",
+    "vslam.backend.local_problem_kernels",
+    "vslam.map.matching_kernels",
+    "vslam.geometry.pnp_kernels",
+    "vslam.features.orb_kernels",
+    "vslam.datasets.depth_kernels",
 )
 
 
