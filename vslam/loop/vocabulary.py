@@ -40,6 +40,7 @@ import numpy as np
 
 from vslam.errors import ConfigError, MapFormatError, VslamError
 from vslam.loop.config import VocabularyConfig
+from vslam.loop.vocabulary_kernels import descend_words
 from vslam.map.database import BowVector  # the vector type the keyframe database indexes
 
 log = logging.getLogger(__name__)
@@ -181,6 +182,14 @@ class Vocabulary:
                 f"({self.descriptor_size}-byte descriptors expected)"
             )
         query = _words(descriptors)
+        if query.dtype == np.uint64 and len(query):  # compiled: the same integer distances and first-minimum picks
+            path = np.zeros((self.levels + 1, len(query)), dtype=np.int32)
+            descend_words(self._node_words, self._descend_children, query, self.levels, path)
+            return path[-1].copy(), path
+        return self._descend_numpy(query)
+
+    def _descend_numpy(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`descend` in NumPy on packed descriptors ``query (N, W)`` (any word width)."""
         n = query.shape[0]
         node = np.zeros(n, dtype=np.int32)
         path = np.zeros((self.levels + 1, n), dtype=np.int32)
