@@ -71,6 +71,8 @@ def test_compiled_binary_matching_equals_knn_with_ties(warped_pair):
         b = np.concatenate([a[rng.integers(0, len(a), 10)], rng.integers(0, 256, (int(rng.integers(0, 30)), 32),
                                                                           dtype=np.uint8) & np.uint8(0x11)])
         cases.append((a, b))
+    wide = rng.integers(0, 256, (60, 64), dtype=np.uint8) & np.uint8(0x03)  # 512-bit: the generic kernel
+    cases.append((wide, np.concatenate([wide[::3], rng.integers(0, 256, (30, 64), dtype=np.uint8) & np.uint8(0x03)])))
     n = 0
     for a, b in cases:
         for ratio, mutual, max_distance in [(0.8, True, 64.0), (1.0, True, None), (1.0, False, None), (0.9, False, 30.0)]:

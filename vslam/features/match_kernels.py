@@ -60,6 +60,43 @@ def nn2_mutual(a, b, best, second, nn, back):  # pragma: no cover - compiled
         nn[i] = n0
 
 
+@njit(cache=True, nogil=True)
+def nn2_mutual_4(a, bT, best, second, nn, back):  # pragma: no cover - compiled
+    """:func:`nn2_mutual` for 256-bit descriptors (ORB) with ``b`` transposed, ``bT (4, N2)``: one
+    query row's distances to all of ``b`` in a loop the compiler vectorizes, the backward nearest
+    rows updated in the same loop, then the least distance, its first index and the least of the
+    others (the second best, equal to the best on ties)."""
+    na = a.shape[0]
+    nb = bT.shape[1]
+    big = np.int64(1) << 40
+    back_d = np.full(nb, big, np.int64)
+    dist = np.empty(nb, np.int64)
+    for j in range(nb):
+        back[j] = -1
+    r0, r1, r2, r3 = bT[0], bT[1], bT[2], bT[3]
+    for i in range(na):
+        a0, a1, a2, a3 = a[i, 0], a[i, 1], a[i, 2], a[i, 3]
+        m = big
+        for j in range(nb):
+            d = popcount64(a0 ^ r0[j]) + popcount64(a1 ^ r1[j]) + popcount64(a2 ^ r2[j]) + popcount64(a3 ^ r3[j])
+            dist[j] = d
+            upd = d < back_d[j]
+            back_d[j] = d if upd else back_d[j]
+            back[j] = i if upd else back[j]
+            m = d if d < m else m
+        n0 = 0
+        while dist[n0] != m:
+            n0 += 1
+        s = big
+        for j in range(n0):
+            s = dist[j] if dist[j] < s else s
+        for j in range(n0 + 1, nb):
+            s = dist[j] if dist[j] < s else s
+        best[i] = m
+        second[i] = s if s < big else -1
+        nn[i] = n0
+
+
 def hamming_nn_mutual(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(best (N1,) float32, second (N1,) float32 (inf without a second), nn (N1,) int64,
     back (N2,) int64)`` of uint8 descriptors ``a (N1, D)``, ``b (N2, D)`` with ``D % 8 == 0``, both non-empty."""
@@ -69,7 +106,10 @@ def hamming_nn_mutual(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndar
     second = np.empty(len(aw), np.int64)
     nn = np.empty(len(aw), np.int64)
     back = np.empty(len(bw), np.int64)
-    nn2_mutual(aw, bw, best, second, nn, back)
+    if aw.shape[1] == 4:
+        nn2_mutual_4(aw, np.ascontiguousarray(bw.T), best, second, nn, back)
+    else:
+        nn2_mutual(aw, bw, best, second, nn, back)
     sec = second.astype(np.float32)
     sec[second < 0] = np.inf
     return best.astype(np.float32), sec, nn, back
@@ -78,3 +118,4 @@ def hamming_nn_mutual(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndar
 def warm() -> None:
     """Compile / load the kernels once on tiny inputs."""
     hamming_nn_mutual(np.zeros((2, 8), np.uint8), np.ones((3, 8), np.uint8))
+    hamming_nn_mutual(np.zeros((2, 32), np.uint8), np.ones((3, 32), np.uint8))
