@@ -39,6 +39,26 @@ def descend_words(node_words, children, query, levels, path):  # pragma: no cove
     return path
 
 
+def descend_numpy(node_words: np.ndarray, children: np.ndarray, query: np.ndarray, levels: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`descend_words` in NumPy for packed descriptors of any word width ``query (N, W)``:
+    per level one gather of the ``k`` children's descriptors, one XOR and one popcount for all
+    features. Returns ``(leaf_nodes (N,), path (levels + 1, N))`` int32."""
+    n = query.shape[0]
+    node = np.zeros(n, dtype=np.int32)
+    path = np.zeros((levels + 1, n), dtype=np.int32)
+    rows = np.arange(n)
+    for level in range(1, levels + 1):
+        kids = children[node]  # (n, k); a leaf's "children" are itself
+        bits = np.bitwise_count(node_words[kids] ^ query[:, None, :])  # (n, k, W) uint8
+        dist = bits[..., 0].astype(np.uint16)
+        for w in range(1, bits.shape[2]):
+            dist += bits[..., w]
+        node = kids[rows, dist.argmin(axis=1)]
+        path[level] = node
+    return node, path
+
+
 def warm() -> None:
     """Compile / load the kernels once on tiny inputs."""
     words = np.zeros((3, 4), np.uint64)
