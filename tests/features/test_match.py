@@ -46,6 +46,45 @@ def test_faiss_equals_bruteforce_binary(warped_pair):
     np.testing.assert_array_equal(d_f, np.array([[m.distance for m in p] for p in cv]))
 
 
+def _match_by_knn(a, b, ratio, mutual, max_distance):
+    """match_descriptors as two knn searches (forward 2-NN, backward 1-NN), the reference of the
+    compiled one-pass matching."""
+    dist, idx = knn(a, b, 2, True)
+    best, nn = dist[:, 0], idx[:, 0]
+    keep = (nn >= 0) & (best < ratio * dist[:, 1] if ratio < 1.0 else True)
+    if max_distance is not None:
+        keep &= best <= max_distance
+    if mutual:
+        keep &= knn(b, a, 1, True)[1][np.maximum(nn, 0), 0] == np.arange(len(a))
+    i1 = np.flatnonzero(keep)
+    return i1, nn[i1], best[i1]
+
+
+def test_compiled_binary_matching_equals_knn_with_ties(warped_pair):
+    """The compiled matching (match_kernels) returns what two faiss k-NN searches gave, pair for pair
+    and dtype for dtype, also with many equal distances (ratio 1: ties decide, lower index wins)."""
+    _, f0, f1 = warped_pair
+    rng = np.random.default_rng(4)
+    cases = [(f0.descriptors, f1.descriptors)]
+    for _ in range(40):
+        a = rng.integers(0, 256, (int(rng.integers(1, 50)), 32), dtype=np.uint8) & np.uint8(0x11)
+        b = np.concatenate([a[rng.integers(0, len(a), 10)], rng.integers(0, 256, (int(rng.integers(0, 30)), 32),
+                                                                          dtype=np.uint8) & np.uint8(0x11)])
+        cases.append((a, b))
+    wide = rng.integers(0, 256, (60, 64), dtype=np.uint8) & np.uint8(0x03)  # 512-bit: the generic kernel
+    cases.append((wide, np.concatenate([wide[::3], rng.integers(0, 256, (30, 64), dtype=np.uint8) & np.uint8(0x03)])))
+    n = 0
+    for a, b in cases:
+        for ratio, mutual, max_distance in [(0.8, True, 64.0), (1.0, True, None), (1.0, False, None), (0.9, False, 30.0)]:
+            got = match_descriptors(a, b, True, ratio=ratio, mutual=mutual, max_distance=max_distance)
+            ref = _match_by_knn(a, b, ratio, mutual, max_distance)
+            for x, y in zip(got, ref):
+                assert x.dtype == y.dtype
+                np.testing.assert_array_equal(x, y)
+            n += len(got[0])
+    assert n > 1000
+
+
 def test_faiss_equals_bruteforce_float():
     rng = np.random.default_rng(1)
     a = rng.normal(size=(300, 128)).astype(np.float32)

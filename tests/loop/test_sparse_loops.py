@@ -57,6 +57,36 @@ def test_keypoints_with_depth_matched_keyframe_by_keyframe():
     np.testing.assert_allclose(ver.T_world_cam, T_world_q, atol=1e-6)
 
 
+def test_per_keyframe_matches_cached_across_groups(monkeypatch):
+    """``extra_matches``: a query verified against overlapping candidate groups matches each
+    keyframe's depth keypoints once; the cached pairs give the same verification."""
+    import vslam.loop.verification as verification
+
+    camera, feat, store, extra_X, extra_desc, extra_src, T_world_q = _scene()
+    no_pts = np.zeros(0, np.int64)
+    calls = []
+    match = verification.match_descriptors
+    monkeypatch.setattr(verification, "match_descriptors", lambda *a, **k: calls.append(len(a[1])) or match(*a, **k))
+    kw = dict(extra_X=extra_X, extra_desc=extra_desc, extra_src=extra_src)
+    plain = verify(feat, store, no_pts, camera, "rgbd", **kw)
+    assert calls == [60, 60]
+    cache: dict = {}
+    first = verify(feat, store, no_pts, camera, "rgbd", extra_matches=cache, **kw)
+    assert sorted(cache) == [3, 4] and len(calls) == 4
+    # a second group holding keyframe 4 (rows in another order) and a new keyframe 5: only 5 is matched
+    sel = np.flatnonzero(extra_src == 4)
+    X2 = np.concatenate([extra_X[:60], extra_X[sel]])
+    D2 = np.concatenate([extra_desc[:60], extra_desc[sel]])
+    S2 = np.repeat([5, 4], 60)
+    again = verify(feat, store, no_pts, camera, "rgbd", extra_X=X2, extra_desc=D2, extra_src=S2, extra_matches=cache)
+    fresh = verify(feat, store, no_pts, camera, "rgbd", extra_X=X2, extra_desc=D2, extra_src=S2)
+    assert len(calls) == 4 + 1 + 2 and sorted(cache) == [3, 4, 5]
+    for a, b in [(plain, first), (fresh, again)]:
+        assert a.n_ransac == b.n_ransac == 120
+        np.testing.assert_array_equal(a.T_world_cam, b.T_world_cam)
+    np.testing.assert_allclose(again.T_world_cam, T_world_q, atol=1e-6)
+
+
 def test_ransac_pose_refined_on_reprojection():
     """The 3D-3D RANSAC fits noisy depth (RGB-D noise grows with z^2) as if it were exact; with
     ``refine_ransac`` its inliers' reprojection errors (exact pixels here) refine the pose, which is

@@ -83,6 +83,25 @@ def test_tree_shape_and_vectorized_descent_equals_naive(small_vocabulary):
         np.testing.assert_array_equal(voc.parents[path[level][moved]], path[level - 1][moved])
 
 
+def test_compiled_descent_equals_numpy_on_ties(vocabulary):
+    """The compiled descent (vocabulary_kernels) gives the NumPy descent's leaves and paths exactly,
+    also for descriptors equal to node centroids and coarse ones with many equal distances."""
+    from vslam.loop.vocabulary import _words
+    from vslam.loop.vocabulary_kernels import descend_numpy
+
+    rng = np.random.default_rng(11)
+    centroids = vocabulary.descriptors[rng.integers(1, vocabulary.n_nodes, 400)]
+    coarse = rng.integers(0, 256, (400, 32), dtype=np.uint8) & np.uint8(0x81)
+    queries = np.concatenate([rng.integers(0, 256, (400, 32), dtype=np.uint8), centroids, coarse])
+    leaves, path = vocabulary.descend(queries)
+    ref_leaves, ref_path = descend_numpy(vocabulary._node_words, vocabulary._descend_children, _words(queries),
+                                         vocabulary.levels)
+    np.testing.assert_array_equal(leaves, ref_leaves)
+    np.testing.assert_array_equal(path, ref_path)
+    assert leaves.dtype == ref_leaves.dtype == np.int32
+    assert len(np.unique(leaves)) > 300  # the queries spread over the tree
+
+
 def test_direct_index_node_is_ancestor_of_the_word(small_vocabulary):
     voc, sets = small_vocabulary
     bow, nodes = voc.transform(sets[1], direct_index_level=2)

@@ -1,4 +1,5 @@
-"""Descriptor matching: brute-force k-NN (faiss) with Lowe's ratio test and a mutual check.
+"""Descriptor matching: brute-force k-NN (faiss; binary matching in one compiled pass,
+:mod:`vslam.features.match_kernels`) with Lowe's ratio test and a mutual check.
 Guided matching of projected map points (ORB-SLAM's ``SearchByProjection``) is
 :func:`vslam.map.matching.guided_match`.
 
@@ -136,15 +137,21 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, binary: bool, ratio:
         return _EMPTY
     if desc1.shape[1] != desc2.shape[1]:
         raise VslamError(f"descriptor widths differ: {desc1.shape[1]} vs {desc2.shape[1]}")
-    dist, idx = knn(desc1, desc2, 2, binary, threads, use_faiss)
-    best, nn = dist[:, 0], idx[:, 0]
+    if binary and use_faiss and desc1.shape[1] % 8 == 0:
+        # compiled: both directions from one pass over the distance matrix, the same neighbours as knn
+        from vslam.features.match_kernels import hamming_nn_mutual
+
+        best, second, nn, back = hamming_nn_mutual(desc1, desc2)
+    else:
+        dist, idx = knn(desc1, desc2, 2, binary, threads, use_faiss)
+        best, second, nn = dist[:, 0], dist[:, 1], idx[:, 0]
+        back = knn(desc2, desc1, 1, binary, threads, use_faiss)[1][:, 0] if mutual else None
     keep = nn >= 0
     if ratio < 1.0:
-        keep &= best < ratio * dist[:, 1]  # inf second-best (one candidate) passes
+        keep &= best < ratio * second  # inf second-best (one candidate) passes
     if max_distance is not None:
         keep &= best <= max_distance
     if mutual:
-        _, back = knn(desc2, desc1, 1, binary, threads, use_faiss)
-        keep &= back[np.maximum(nn, 0), 0] == np.arange(len(desc1))
+        keep &= back[np.maximum(nn, 0)] == np.arange(len(desc1))
     i1 = np.flatnonzero(keep)
     return i1, nn[i1], best[i1]

@@ -58,8 +58,10 @@ from typing import Callable
 
 import numpy as np
 
+from vslam.features import match_kernels
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.geometry.lie import inv_se3
+from vslam.loop import vocabulary_kernels
 from vslam.loop.config import LoopConfig
 from vslam.loop.detector import LoopDetector
 from vslam.loop.essential_graph import EssentialGraph, build_essential_graph, write_back_corrections
@@ -145,10 +147,15 @@ class LoopCloser:
         self.global_ba = global_ba
         self.pose_graph_config = pose_graph or PoseGraphConfig()
         self.vocabulary = vocabulary or load_default_vocabulary()
+        vocabulary_kernels.warm()  # the compiled BoW descent and descriptor matching load now, not mid-run
+        match_kernels.warm()
         self.database = KeyframeDatabase(self.vocabulary.n_words, self.config.database)
         self.detector = LoopDetector(self.database, self.config.detector, neighbours=self._neighbours)
         self.bf = stereo_bf(camera, sensor)
         self.bows: dict[int, BowVector] = {}
+        # while one keyframe's candidates are verified: per query keyframe, its matches to each
+        # candidate-side keyframe's depth keypoints (the tried groups overlap; the map is locked)
+        self._extra_matches: dict[int, dict] | None = None
         self.loops: list[LoopRecord] = []
         self.rejected = 0
         self.candidates = 0
@@ -238,13 +245,19 @@ class LoopCloser:
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
             order = sorted((i for i in cand.group if i not in exclude and i in same),
                            key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[: 1 if single else self.config.closing.max_tries]
-            for match_id in order:
-                ver = self._verify(kf, match_id, single)
-                if ver == "implausible":
-                    break  # the group agrees on a correction too large to trust
-                if ver is not None:
-                    prepared = self._prepare_correction(kf, match_id, ver, cand.score)
-                    break
+            ver: Verified | str | None = None
+            self._extra_matches = {}
+            try:
+                for match_id in order:
+                    ver = self._verify(kf, match_id, single)
+                    if ver == "implausible":
+                        break  # the group agrees on a correction too large to trust
+                    if ver is not None:
+                        break
+            finally:
+                self._extra_matches = None
+            if isinstance(ver, Verified):
+                prepared = self._prepare_correction(kf, match_id, ver, cand.score)
             if prepared is None:
                 others = [i for i in cand.group if i not in exclude and i not in same and i in self.map.keyframes]
                 if others and try_merge(self, kf, others) is not None:
@@ -338,6 +351,8 @@ class LoopCloser:
         extra = self._keypoints_with_depth(group[: 1 + cc.depth_keypoint_neighbours]) \
             if cc.match_keypoints_with_depth else None
         ex = {} if extra is None else {"extra_X": extra[0], "extra_desc": extra[1], "extra_src": extra[2]}
+        if extra is not None and self._extra_matches is not None:
+            ex["extra_matches"] = self._extra_matches.setdefault(kf.id, {})
         params = VerifyParams(
             ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
             align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,

@@ -158,6 +158,7 @@ class _Ransac:
 def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: PinholeCamera, sensor: str,
            params: VerifyParams | None = None, *, extra_X: np.ndarray | None = None,
            extra_desc: np.ndarray | None = None, extra_src: np.ndarray | None = None,
+           extra_matches: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
            **overrides: Any) -> Verified | None:
     """Estimate the pose of ``feat`` against map points ``group_pts`` (ids into ``store``).
 
@@ -188,13 +189,16 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
     same scene point seen by several candidate keyframes is not rejected as ambiguous) and every
     pair enters the RANSAC (a query keypoint may match one point per keyframe: the candidate
     keyframes' poses are independent estimates, so their agreement is evidence).
+    ``extra_matches``: a cache of those per-keyframe matches, ``{source: (kp_idx, index among that
+    source's extras)}``, read and filled; pass the same dict only for the same query features and
+    unchanged keyframes (the loop closer verifies a query against up to three overlapping groups).
 
     Returns None when any stage has too little support; the caller applies its own inlier threshold.
     """
     p = replace(params or VerifyParams(), **overrides)
     mono = sensor == "mono"
     if extra_X is not None and len(extra_X) and store.descriptor is not None:
-        cands = _match_with_extras(feat, store, group_pts, extra_X, extra_desc, extra_src, p)
+        cands = _match_with_extras(feat, store, group_pts, extra_X, extra_desc, extra_src, p, extra_matches)
         if cands is None:
             return None
         kp, X_world, pids = cands
@@ -222,8 +226,8 @@ def verify(feat: Features, store: MapPointStore, group_pts: np.ndarray, camera: 
 
 
 def _match_with_extras(feat: Features, store: MapPointStore, group_pts: np.ndarray, extra_X: np.ndarray,
-                       extra_desc: np.ndarray, extra_src: np.ndarray | None,
-                       p: VerifyParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                       extra_desc: np.ndarray, extra_src: np.ndarray | None, p: VerifyParams,
+                       cache: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Step 1 with extra candidates: ``(kp_idx, X_world, point_ids)`` with point id -1 for an extra
     (matched keyframe by keyframe when ``extra_src`` is given), None without descriptors."""
     cand_X = np.concatenate([store.position[group_pts], extra_X])
@@ -236,14 +240,16 @@ def _match_with_extras(feat: Features, store: MapPointStore, group_pts: np.ndarr
                                       max_distance=p.max_distance)
         i1, i2 = np.asarray(i1, np.int64), np.asarray(i2, np.int64)
     else:
-        i1, i2 = _match_per_keyframe(feat, cand_desc, len(group_pts), extra_desc, extra_src, p)
+        i1, i2 = _match_per_keyframe(feat, cand_desc, len(group_pts), extra_desc, extra_src, p, cache)
     return i1, cand_X[i2], cand_ids[i2]
 
 
 def _match_per_keyframe(feat: Features, cand_desc: np.ndarray, n_map: int, extra_desc: np.ndarray,
-                        extra_src: np.ndarray, p: VerifyParams) -> tuple[np.ndarray, np.ndarray]:
+                        extra_src: np.ndarray, p: VerifyParams, cache: dict | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Ratio + mutual matching against the map points, then against each source keyframe's extras
-    alone; ``(kp_idx, candidate index)`` of all pairs (extras indexed after the ``n_map`` points)."""
+    alone (taken from / stored in ``cache`` by source when given); ``(kp_idx, candidate index)`` of
+    all pairs (extras indexed after the ``n_map`` points)."""
     parts1, parts2 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     if n_map >= 2:
         j1, j2, _ = match_descriptors(feat.descriptors, cand_desc[:n_map], binary=True, ratio=p.ratio,
@@ -254,10 +260,15 @@ def _match_per_keyframe(feat: Features, cand_desc: np.ndarray, n_map: int, extra
         sel = np.flatnonzero(extra_src == src)
         if len(sel) < 2:
             continue
-        j1, j2, _ = match_descriptors(feat.descriptors, extra_desc[sel], binary=True, ratio=p.ratio,
-                                      mutual=True, max_distance=p.max_distance)
-        parts1.append(np.asarray(j1, np.int64))
-        parts2.append(n_map + sel[np.asarray(j2, np.int64)])
+        hit = None if cache is None else cache.get(int(src))
+        if hit is None:
+            j1, j2, _ = match_descriptors(feat.descriptors, extra_desc[sel], binary=True, ratio=p.ratio,
+                                          mutual=True, max_distance=p.max_distance)
+            hit = (np.asarray(j1, np.int64), np.asarray(j2, np.int64))
+            if cache is not None:
+                cache[int(src)] = hit
+        parts1.append(hit[0])
+        parts2.append(n_map + sel[hit[1]])
     return np.concatenate(parts1), np.concatenate(parts2)
 
 

@@ -17,9 +17,9 @@ Sequences", IEEE T-RO 2012:
   geometric verification matches features only within the same node.
 
 The tree is stored as flat arrays (node 0 is the root; parents always precede their children and
-the children of a node are contiguous), so a frame's descriptors descend the tree together: at
-each level one gather of the ``k`` children's descriptors, one XOR and one popcount for all
-features at once.
+the children of a node are contiguous), so a frame's descriptors descend the tree in one compiled
+loop (:mod:`vslam.loop.vocabulary_kernels`; the NumPy version, one gather of the ``k`` children's
+descriptors, one XOR and one popcount per level for all features at once, is the reference).
 
 Example:
     >>> voc = load_default_vocabulary()                      # doctest: +SKIP
@@ -40,6 +40,7 @@ import numpy as np
 
 from vslam.errors import ConfigError, MapFormatError, VslamError
 from vslam.loop.config import VocabularyConfig
+from vslam.loop.vocabulary_kernels import descend_numpy, descend_words
 from vslam.map.database import BowVector  # the vector type the keyframe database indexes
 
 log = logging.getLogger(__name__)
@@ -181,19 +182,11 @@ class Vocabulary:
                 f"({self.descriptor_size}-byte descriptors expected)"
             )
         query = _words(descriptors)
-        n = query.shape[0]
-        node = np.zeros(n, dtype=np.int32)
-        path = np.zeros((self.levels + 1, n), dtype=np.int32)
-        rows = np.arange(n)
-        for level in range(1, self.levels + 1):
-            children = self._descend_children[node]  # (n, k); a leaf's "children" are itself
-            bits = np.bitwise_count(self._node_words[children] ^ query[:, None, :])  # (n, k, W) uint8
-            dist = bits[..., 0].astype(np.uint16)
-            for w in range(1, bits.shape[2]):
-                dist += bits[..., w]
-            node = children[rows, dist.argmin(axis=1)]
-            path[level] = node
-        return node, path
+        if query.dtype == np.uint64 and len(query):  # compiled: the same integer distances and first-minimum picks
+            path = np.zeros((self.levels + 1, len(query)), dtype=np.int32)
+            descend_words(self._node_words, self._descend_children, query, self.levels, path)
+            return path[-1].copy(), path
+        return descend_numpy(self._node_words, self._descend_children, query, self.levels)
 
     def transform(self, descriptors: np.ndarray | None, direct_index_level: int | None = None
                   ) -> tuple[BowVector, np.ndarray]:

@@ -29,6 +29,12 @@ from vslam.geometry.lie import make_sim3, sim3_decompose
 
 LOG = logging.getLogger(__name__)
 
+# GTSAM's default COLAMD ordering makes the multifrontal Cholesky of a densely covisible essential
+# graph slow: 7-Scenes redkitchen's loop (151 keyframes, 3484 edges) eliminates in 0.49 s per LM
+# iteration with COLAMD and 0.02 s with METIS (nested dissection), which gives the same poses to
+# 2e-16 (1.7 s -> 0.08 s for the solve).
+ELIMINATION_ORDERING = "METIS"
+
 
 @dataclass
 class PoseGraphResult:
@@ -113,6 +119,7 @@ def optimize_pose_graph(
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)
+    params.setOrderingType(ELIMINATION_ORDERING)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     initial_error = graph.error(values)
     result = optimizer.optimize()
