@@ -49,6 +49,8 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.geometry.pnp_kernels",
     "vslam.features.orb_kernels",
     "vslam.datasets.depth_kernels",
+    "vslam.features.match_kernels",
+    "vslam.loop.vocabulary_kernels",
 )
 
 

@@ -64,7 +64,7 @@ class MatcherConfig:
     max_distance: float | None = param(None, "absolute bound on the best distance (Hamming bits or L2); null: no bound")
     # on a busy 2-core machine 2 threads made a 2000x2000 match 3-10x slower (spinning)
     num_threads: int = param(1, "OpenMP threads faiss may use (results do not depend on it)")
-    use_faiss: bool = param(True, "faiss k-NN search (faster at >= a few hundred descriptors); false: NumPy brute force")
+    use_faiss: bool = param(True, "fast search: binary descriptors by the compiled one-pass matcher, float ones by faiss k-NN; false: NumPy brute force")
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ratio <= 1.0:
