@@ -68,7 +68,7 @@ def predict(R, t, X, cam, pt, meas_T, baseline, stereo, disparity, any_disparity
             chi2[m] = info[m] * (r0 * r0 + r1 * r1) + info_d[m] * (r2 * r2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _weights(m, chi2, w_rows, use_huber, huber):  # pragma: no cover - compiled
     """Row weights of observation ``m`` (information x Huber IRLS weight; 0 where ``chi2`` is inf)
     and whether it is finite."""
@@ -90,7 +90,7 @@ def _weights(m, chi2, w_rows, use_huber, huber):  # pragma: no cover - compiled
     return ok, w0, w1, w2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _normal_blocks(m, ok, w0, w1, w2, X_cam, r, baseline, disparity, any_disparity, fx, fy, A):  # pragma: no cover - compiled
     """``A = Jh^T W Jh`` into ``A (3, 3)``; returns ``b = Jh^T W r`` and ``X_cam`` of observation ``m``."""
     x = X_cam[0, m]
@@ -130,7 +130,7 @@ def _normal_blocks(m, ok, w0, w1, w2, X_cam, r, baseline, disparity, any_dispari
     return b0, b1, b2, x, y, z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _point_sums(R, c, p, A, b0, b1, b2, B, acc):  # pragma: no cover - compiled
     """``B = A R``; ``acc[p]`` += ``R^T B`` (9) and ``R^T b`` (3), in the einsum's order."""
     # B = A R (einsum "ilm,ljm->ijm": zero-initialized, summed over l in order)
@@ -150,7 +150,7 @@ def _point_sums(R, c, p, A, b0, b1, b2, B, acc):  # pragma: no cover - compiled
         acc[p, 9 + i] += s + R[c, 2, i] * b2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _camera_blocks(m, v, A, B, C, b0, b1, b2, x, y, z, cs, Hcp):  # pragma: no cover - compiled
     """Adds observation ``m``'s camera summands to row ``v`` of ``cs (n_c, 33)``: A (9),
     C = [X]_x A (9, into scratch ``C``), D = -C [X]_x (9), b (3), X x b (3); writes
