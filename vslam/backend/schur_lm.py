@@ -24,11 +24,11 @@ Parametrization: the solver works on ``T_cam_world = (R, t)``; a step ``delta = 
 
 Implementation notes: the per-observation work (prediction, Jacobian products, point and camera
 sums, the coupling blocks ``W_i``) is one compiled loop each (:mod:`vslam.backend.schur_kernels`,
-numba); per-observation outputs are component-major ``(a, M)`` rows. For local BA the reduced camera
-system ``S = U - sum_p sum_{i,j in obs(p)} W_i V_p W_j^T`` is summed per point over its observation
-pairs (~30 000 pairs of 6 x 3 blocks for a 10 + 10 keyframe window: ~7x fewer multiply-adds than the
-dense ``6 n_c x 3 P`` GEMM it replaced, and no dense coupling buffer); large global BA keeps a
-block-sparse (BSR) ``W``. BLAS is held to one thread during a solve
+numba); per-observation outputs are component-major ``(a, M)`` rows. The reduced camera system
+``S = U - sum_p sum_{i,j in obs(p)} W_i V_p W_j^T`` is summed per point over its observation pairs
+(local BA, 10 + 10 keyframes: ~30 000 pairs of 6 x 3 blocks, ~7x fewer multiply-adds than the dense
+``6 n_c x 3 P`` GEMM it replaced, 2-3x faster than a BSR sparse product on global problems), then
+solved densely. BLAS is held to one thread during a solve
 (threadpoolctl; process-wide while it runs): on a busy machine threaded GEMMs were 30x slower.
 """
 from __future__ import annotations
@@ -38,7 +38,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse
 
 from vslam.backend import schur_kernels
 from vslam.geometry.lie import so3_exp
@@ -90,9 +89,6 @@ class Intrinsics:
     cy: float
 
 
-# above these sizes of a dense 6K x 3P coupling (entries / Schur GEMM multiply-adds) the BSR path is used
-_DENSE_LIMIT = 6_000_000
-_DENSE_GEMM_LIMIT = 300_000_000
 _CONTROLLER = None
 
 
@@ -161,73 +157,41 @@ def _robust_cost(chi2: np.ndarray, active: np.ndarray, huber: np.ndarray | None)
     return float(np.sum(np.where(e <= k, c, 2.0 * k * e - k * k)))
 
 
-class _BlockW:
-    """The sparse coupling ``W`` as BSR matrices (6x3 blocks) plus its transpose (3x6 blocks)."""
-
-    def __init__(self, st: "_Structure", blocks: np.ndarray) -> None:
-        self.blocks = blocks  # (n_free_obs, 6, 3), camera-sorted observation order
-        self.W = scipy.sparse.bsr_matrix((blocks[st.order_w], st.pf[st.order_w], st.indptr_w), shape=st.shape_W)
-        self.WT = scipy.sparse.bsr_matrix(
-            (np.ascontiguousarray(blocks[st.order_t].transpose(0, 2, 1)), st.cf[st.order_t], st.indptr_t),
-            shape=st.shape_W[::-1],
-        )
-
-
 class _Structure:
-    """Index patterns that stay fixed over the iterations (built once per solve).
+    """Index patterns and buffers that stay fixed over the iterations (built once per solve).
 
-    The coupling blocks ``Hcp (M, 3, 6)`` (one per observation, transposed) are reduced per point
-    over their observation pairs by :func:`schur_kernels.reduced_camera_system` while the
-    camera system is small (local BA: ``pointwise``), and go into a block-sparse (BSR) ``W
-    (6 n_c x 3 n_p)`` (columns ``3 p + j``) with a sparse-sparse Schur product for large global problems.
+    The coupling blocks ``Hcp (M, 3, 6)`` (``W_i^T``, one per observation, reused by every
+    linearization) are reduced per point over the observation pairs of its variable cameras
+    (:func:`schur_kernels.reduced_camera_system`): ``pt_obs[pt_ptr[p]:pt_ptr[p + 1]]`` are the
+    observations of point ``p`` by variable cameras, in camera order, ``obs_var`` each observation's
+    variable camera (``-1``: fixed).
     """
 
     def __init__(self, obs: Observations, cam_var: np.ndarray, n_var_cams: int, n_points: int) -> None:
         self.n_c, self.n_p = n_var_cams, n_points
-        var = cam_var[obs.cam]
-        self.free = np.flatnonzero(var >= 0)
-        self.pf = obs.pt[self.free]
-        self.cf = var[self.free]
-        self.shape_W = (6 * n_var_cams, 3 * n_points)
-        entries = self.shape_W[0] * self.shape_W[1]
-        self.pointwise = entries <= _DENSE_LIMIT and entries * self.shape_W[0] <= _DENSE_GEMM_LIMIT
-        self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))  # reused per linearization
-        self.indptr_t = np.concatenate([[0], np.cumsum(np.bincount(self.pf, minlength=n_points))])
-        self.order_t = np.lexsort((self.cf, self.pf))  # free observations by point, then camera
-        self.obs_var = var  # variable camera of each observation (-1: fixed)
-        if self.pointwise:
-            self.pt_obs = self.free[self.order_t]
-            k_max = int(np.diff(self.indptr_t).max(initial=0))
-            self._Y = np.empty((k_max, 3, 6))
-            self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
-            self._bc = np.empty(6 * n_var_cams)
-        else:
-            self.order_w = np.lexsort((self.pf, self.cf))
-            self.indptr_w = np.concatenate([[0], np.cumsum(np.bincount(self.cf, minlength=n_var_cams))])
+        self.obs_var = cam_var[obs.cam]
+        free = np.flatnonzero(self.obs_var >= 0)
+        pf = obs.pt[free]
+        self.pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pf, minlength=n_points))])
+        self.pt_obs = free[np.lexsort((self.obs_var[free], pf))]
+        self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))
+        self._Y = np.empty((int(np.diff(self.pt_ptr).max(initial=0)), 3, 6))
+        self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
+        self._bc = np.empty(6 * n_var_cams)
 
-    def coupling(self, Hcp: np.ndarray):
-        """``W``: the per-observation blocks ``Hcp (M, 3, 6)`` (transposed) themselves, or :class:`_BlockW`."""
-        if self.pointwise:
-            return Hcp
-        return _BlockW(self, np.ascontiguousarray(Hcp[self.free].transpose(0, 2, 1)))
+    def reduce(self, W: np.ndarray, V: np.ndarray, gp: np.ndarray, gc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``S = -W blockdiag(V) W^T`` (dense ``6 n_c x 6 n_c``; overwritten by the next call) and
+        ``bc = gc - W blockdiag(V) gp``, for the blocks ``W (M, 3, 6)`` and ``V (3, 3, P)``."""
+        schur_kernels.reduced_camera_system(W, np.ascontiguousarray(V), gp, gc, self.pt_ptr, self.pt_obs,
+                                            self.obs_var, self._S, self._bc, self._Y)
+        return self._S, self._bc
 
-    def reduce(self, W, V: np.ndarray, gp: np.ndarray, gc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``S = -W blockdiag(V) W^T`` (dense ``6 n_c x 6 n_c``) and ``bc = gc - W blockdiag(V) gp``."""
-        if self.pointwise:
-            schur_kernels.reduced_camera_system(W, np.ascontiguousarray(V), gp, gc, self.indptr_t, self.pt_obs,
-                                                self.obs_var, self._S, self._bc, self._Y)
-            return self._S, self._bc
-        Yb = W.blocks @ np.take(V, self.pf, axis=2).transpose(2, 0, 1)
-        Y = scipy.sparse.bsr_matrix((Yb[self.order_w], self.pf[self.order_w], self.indptr_w), shape=self.shape_W)
-        return -(Y @ W.WT).toarray(), gc - Y @ gp.T.reshape(-1)
-
-    def back_substitute(self, W, V: np.ndarray, gp: np.ndarray, dc: np.ndarray) -> np.ndarray:
+    def back_substitute(self, W: np.ndarray, V: np.ndarray, gp: np.ndarray, dc: np.ndarray) -> np.ndarray:
         """Point steps ``dp = blockdiag(V) (gp - W^T dc)`` as ``(3, P)``."""
-        if self.pointwise:
-            dp = np.empty((3, self.n_p))
-            schur_kernels.back_substitute(W, V, gp, dc, self.indptr_t, self.pt_obs, self.obs_var, dp)
-            return dp
-        return np.einsum("ijp,jp->ip", V, gp - (W.WT @ dc).reshape(-1, 3).T)
+        dp = np.empty((3, self.n_p))
+        schur_kernels.back_substitute(W, np.ascontiguousarray(V), gp, np.ascontiguousarray(dc), self.pt_ptr,
+                                      self.pt_obs, self.obs_var, dp)
+        return dp
 
 
 @dataclass
@@ -266,7 +230,7 @@ def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     Hcc[:, :3, 3:] = np.transpose(Hcc[:, 3:, :3], (0, 2, 1))
     Hcc[:, 3:, 3:] = sums[:, 18:27].reshape(-1, 3, 3)
     gc = sums[:, 27:33].reshape(-1)
-    return Hcc, gc, st.coupling(st.Hcp), Hpp, gp
+    return Hcc, gc, st.Hcp, Hpp, gp
 
 
 def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
