@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from vslam.backend import schur_kernels
 from vslam.geometry.lie import so3_exp
@@ -173,7 +174,8 @@ class _Structure:
         free = np.flatnonzero(self.obs_var >= 0)
         pf = obs.pt[free]
         self.pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pf, minlength=n_points))])
-        self.pt_obs = free[np.lexsort((self.obs_var[free], pf))]
+        # camera-sorted observations: each point's in camera order (any order is correct, this one is faster)
+        self.pt_obs = free[np.argsort(pf, kind="stable")]
         self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))
         self._Y = np.empty((int(np.diff(self.pt_ptr).max(initial=0)), 3, 6))
         self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
@@ -254,9 +256,8 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
     idx = np.arange(n_c)
     S4 = S.reshape(n_c, 6, n_c, 6)
     S4[idx, :, idx, :] += Hcc_d
-    try:
-        dc = scipy.linalg.solve(S, bc, assume_a="pos", check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
+    _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
+    if info != 0:  # not positive definite (or invalid input)
         dc = np.linalg.lstsq(S, bc, rcond=None)[0]
     dp = st.back_substitute(W, V, gp, dc)
     return dc.reshape(-1, 6), dp
