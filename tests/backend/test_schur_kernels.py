@@ -113,3 +113,18 @@ def test_pointwise_schur_complement_equals_the_dense_reference(sensor):
     dc = np.random.default_rng(2).normal(size=6 * n_c)
     dp_ref = (Vd @ (gpd - Wd.T @ dc)).reshape(-1, 3).T
     np.testing.assert_allclose(st.back_substitute(W, V, gp, dc), dp_ref, rtol=0, atol=1e-9 * np.abs(dp_ref).max())
+
+
+def test_warm_compiles_the_signatures_the_solver_calls():
+    """After ``warm()`` a real solve (RGB-D with disparity rows, Huber then plain) adds no signature:
+    its first call paid no compilation."""
+    from vslam.backend import schur_kernels
+    from vslam.backend.bundle_adjustment import local_bundle_adjustment
+
+    schur_kernels.warm()
+    kernels = (schur_kernels.predict, schur_kernels.linearize, schur_kernels.reduced_camera_system,
+               schur_kernels.back_substitute)
+    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1]
+    problem, _ = make_ba_problem(n_keyframes=4, n_points=40, sensor="rgbd", seed=2)
+    local_bundle_adjustment(problem)
+    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1]
