@@ -83,15 +83,17 @@ def sevenscenes_localization(shared_data, tmp_path_factory):
 
 
 def test_7scenes_localization(sevenscenes_localization):
-    """Measured 366/400 localized (352 tracked, 14 relocalized), 34 lost, ATE 0.04530 m. History:
+    """Measured 369/400 localized (355 tracked, 14 relocalized), 31 lost, ATE 0.04550 m. History:
+    366/400 (352, 14, 34 lost, 10 implausible steps), 0.04530 before issue 15's per-point Schur sums
+    (the map of frames 0-599 moved by 1e-14 m, rounding only, and the counts with it);
     386/400, 0.047 when issue 7 closed; 350/400, 0.0512 after later map changes (the relocalizer's
     RANSAC pose too far off for its guided matching; poses the local map did not confirm were
     reported). Issue 16 asks for >= 360 and < 0.05; the pins below are tighter. Disabling the
     implausible-step check moves every one of these counts."""
     s = sevenscenes_localization
     assert s["frames"] == 400
-    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (366, 352, 14, 34), s
-    assert (s["implausible_steps"], s["track_failures"]) == (10, 13), s
+    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (369, 355, 14, 31), s
+    assert (s["implausible_steps"], s["track_failures"]) == (9, 13), s
     assert s["localized"] >= 360 and s["ate_rmse"] < 0.05
-    assert _band(s["ate_rmse"], 0.04530), s["ate_rmse"]
+    assert _band(s["ate_rmse"], 0.04550), s["ate_rmse"]
     assert s["matched_poses"] == s["localized"]

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vslam.backend import schur_lm
 from vslam.backend.bundle_adjustment import global_bundle_adjustment, local_bundle_adjustment
 from vslam.backend.config import GlobalBAConfig, LocalBAConfig
 from vslam.backend.problem import BAProblem
@@ -106,15 +105,6 @@ def test_global_ba_fixes_the_first_keyframe():
     assert rms(t1) < 0.3 * rms(t0) and rms(t1) < 0.01, (rms(t0), rms(t1))  # measured 33 -> 7.3 mm
     assert rms(r1) < 0.06
     assert np.mean(~res.inlier_mask[truth.outlier]) >= 0.9
-
-
-def test_sparse_schur_path_matches_dense(monkeypatch):
-    problem, _ = make_ba_problem(sensor="stereo", n_points=600, seed=5)
-    dense = local_bundle_adjustment(problem)
-    monkeypatch.setattr(schur_lm, "_DENSE_LIMIT", 0)
-    sparse = local_bundle_adjustment(problem)
-    np.testing.assert_allclose(sparse.T_world_cam, dense.T_world_cam, atol=1e-9)
-    np.testing.assert_allclose(sparse.X_world, dense.X_world, atol=1e-7)
 
 
 def test_gtsam_solver_reaches_the_same_estimate():

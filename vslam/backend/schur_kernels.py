@@ -1,13 +1,15 @@
 """Compiled (numba) per-observation kernels of :mod:`vslam.backend.schur_lm`.
 
-They compute exactly what the NumPy expressions they replace computed, in the same floating-point
-operation order (every product, sum and ``einsum`` contraction written out term by term, sums over
-observations accumulated in observation order like ``np.bincount``), so the solver's results are
-bit-identical with and without them; only the temporaries and the passes over memory are gone
-(one loop over the observations instead of ~60 array expressions, and the coupling ``W`` and
-``W blockdiag(V)`` written straight into their dense buffers instead of a dense ``einsum`` over
-mostly-zero columns). numba does not contract ``a * b + c`` into fused multiply-adds unless
-``fastmath`` is on, which these kernels never set. Equations: see :func:`schur_lm._linearize`.
+:func:`predict` and the per-observation Gauss-Newton products of :func:`linearize` follow the NumPy
+expressions they replaced in the same floating-point operation order (every product and ``einsum``
+contraction written out term by term, point sums accumulated in observation order like
+``np.bincount``). The camera sums are accumulated in the same loop (observation order per camera),
+and the Schur complement is summed per point over its observation pairs
+(:func:`reduced_camera_system`, :func:`back_substitute`) instead of dense ``6 n_c x 3 P`` coupling
+GEMMs: the same system with its sums in another order (results equal to ~1e-15 relative, and
+deterministic). numba does not contract ``a * b + c`` into fused multiply-adds unless ``fastmath``
+is on, which these kernels never set. Equations: see :func:`schur_lm._linearize`. :func:`warm`
+loads (or compiles) every kernel once.
 """
 from __future__ import annotations
 
@@ -66,7 +68,7 @@ def predict(R, t, X, cam, pt, meas_T, baseline, stereo, disparity, any_disparity
             chi2[m] = info[m] * (r0 * r0 + r1 * r1) + info_d[m] * (r2 * r2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _weights(m, chi2, w_rows, use_huber, huber):  # pragma: no cover - compiled
     """Row weights of observation ``m`` (information x Huber IRLS weight; 0 where ``chi2`` is inf)
     and whether it is finite."""
@@ -88,7 +90,7 @@ def _weights(m, chi2, w_rows, use_huber, huber):  # pragma: no cover - compiled
     return ok, w0, w1, w2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _normal_blocks(m, ok, w0, w1, w2, X_cam, r, baseline, disparity, any_disparity, fx, fy, A):  # pragma: no cover - compiled
     """``A = Jh^T W Jh`` into ``A (3, 3)``; returns ``b = Jh^T W r`` and ``X_cam`` of observation ``m``."""
     x = X_cam[0, m]
@@ -128,7 +130,7 @@ def _normal_blocks(m, ok, w0, w1, w2, X_cam, r, baseline, disparity, any_dispari
     return b0, b1, b2, x, y, z
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _point_sums(R, c, p, A, b0, b1, b2, B, acc):  # pragma: no cover - compiled
     """``B = A R``; ``acc[p]`` += ``R^T B`` (9) and ``R^T b`` (3), in the einsum's order."""
     # B = A R (einsum "ilm,ljm->ijm": zero-initialized, summed over l in order)
@@ -148,54 +150,53 @@ def _point_sums(R, c, p, A, b0, b1, b2, B, acc):  # pragma: no cover - compiled
         acc[p, 9 + i] += s + R[c, 2, i] * b2
 
 
-@njit(cache=True, nogil=True)
-def _camera_rows(m, A, B, b0, b1, b2, x, y, z, rows, H):  # pragma: no cover - compiled
-    """Column ``m`` of ``rows (33, M)``: A (9), C = [X]_x A (9), D = -C [X]_x (9), b (3), X x b (3);
-    and ``H = Hcp = [B; [X]_x B] (6, 3)``."""
+@njit(cache=True, nogil=True, inline="always")
+def _camera_blocks(m, v, A, B, C, b0, b1, b2, x, y, z, cs, Hcp):  # pragma: no cover - compiled
+    """Adds observation ``m``'s camera summands to row ``v`` of ``cs (n_c, 33)``: A (9),
+    C = [X]_x A (9, into scratch ``C``), D = -C [X]_x (9), b (3), X x b (3); writes
+    ``Hcp[m] = [B; [X]_x B]^T (3, 6)``."""
+    for j in range(3):
+        C[0, j] = y * A[2, j] - z * A[1, j]
+        C[1, j] = z * A[0, j] - x * A[2, j]
+        C[2, j] = x * A[1, j] - y * A[0, j]
     for i in range(3):
         for j in range(3):
-            rows[3 * i + j, m] = A[i, j]
+            cs[v, 3 * i + j] += A[i, j]
+            cs[v, 9 + 3 * i + j] += C[i, j]
+        cs[v, 18 + 3 * i] += C[i, 2] * y - C[i, 1] * z
+        cs[v, 19 + 3 * i] += C[i, 0] * z - C[i, 2] * x
+        cs[v, 20 + 3 * i] += C[i, 1] * x - C[i, 0] * y
+    cs[v, 27] += b0
+    cs[v, 28] += b1
+    cs[v, 29] += b2
+    cs[v, 30] += y * b2 - z * b1
+    cs[v, 31] += z * b0 - x * b2
+    cs[v, 32] += x * b1 - y * b0
     for j in range(3):
-        rows[9 + j, m] = y * A[2, j] - z * A[1, j]
-        rows[12 + j, m] = z * A[0, j] - x * A[2, j]
-        rows[15 + j, m] = x * A[1, j] - y * A[0, j]
-    for i in range(3):
-        Ci0 = rows[9 + 3 * i, m]
-        Ci1 = rows[10 + 3 * i, m]
-        Ci2 = rows[11 + 3 * i, m]
-        rows[18 + 3 * i, m] = Ci2 * y - Ci1 * z
-        rows[19 + 3 * i, m] = Ci0 * z - Ci2 * x
-        rows[20 + 3 * i, m] = Ci1 * x - Ci0 * y
-    rows[27, m] = b0
-    rows[28, m] = b1
-    rows[29, m] = b2
-    rows[30, m] = y * b2 - z * b1
-    rows[31, m] = z * b0 - x * b2
-    rows[32, m] = x * b1 - y * b0
-    for j in range(3):
-        H[0, j] = B[0, j]
-        H[1, j] = B[1, j]
-        H[2, j] = B[2, j]
-        H[3, j] = y * B[2, j] - z * B[1, j]
-        H[4, j] = z * B[0, j] - x * B[2, j]
-        H[5, j] = x * B[1, j] - y * B[0, j]
+        Hcp[m, j, 0] = B[0, j]
+        Hcp[m, j, 1] = B[1, j]
+        Hcp[m, j, 2] = B[2, j]
+        Hcp[m, j, 3] = y * B[2, j] - z * B[1, j]
+        Hcp[m, j, 4] = z * B[0, j] - x * B[2, j]
+        Hcp[m, j, 5] = x * B[1, j] - y * B[0, j]
 
 
 @njit(cache=True, nogil=True)
 def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, disparity, any_disparity,
-              fx, fy, with_cams, cam_row, n_p, dense, buf, Hcp, rows, Hpp, gp):  # pragma: no cover - compiled
+              fx, fy, obs_var, Hcp, cs, Hpp, gp):  # pragma: no cover - compiled
     """Per-observation Gauss-Newton blocks (see ``schur_lm._linearize``).
 
     Fills ``Hpp (3, 3, P)`` and ``gp (3, P)``, summed over each point's observations in observation
-    order (as ``np.bincount``);
-    when ``with_cams`` fills ``rows (33, M)`` (the per-camera summands) and writes ``Hcp`` either
-    into the dense coupling buffer ``buf`` (row ``6 cam_row + a``, column ``j P + p``) or into
-    ``Hcp (6, 3, M)``.
+    order (as ``np.bincount``); for the observations of variable cameras (``obs_var[m] >= 0``) sums
+    the camera summands into ``cs (n_c, 33)`` (zeroed here) and writes the transposed coupling
+    blocks ``Hcp (M, 3, 6)`` (observation-major: one contiguous block per observation).
     """
     A = np.empty((3, 3))
     B = np.empty((3, 3))
-    H = np.empty((6, 3))
+    C = np.empty((3, 3))
+    n_p = Hpp.shape[2]
     acc = np.zeros((n_p, 12))  # Hpp (9) and gp (3) of each point, summed in observation order
+    cs[:, :] = 0.0
     for m in range(cam.shape[0]):
         c = cam[m]
         p = pt[m]
@@ -203,18 +204,9 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
         b0, b1, b2, x, y, z = _normal_blocks(m, ok, w0, w1, w2, X_cam, r, baseline, disparity, any_disparity,
                                              fx, fy, A)
         _point_sums(R, c, p, A, b0, b1, b2, B, acc)
-        if not with_cams:
-            continue
-        _camera_rows(m, A, B, b0, b1, b2, x, y, z, rows, H)
-        if dense:
-            r6 = 6 * cam_row[m]
-            for a in range(6):
-                for j in range(3):
-                    buf[r6 + a, j * n_p + p] = H[a, j]
-        else:
-            for a in range(6):
-                for j in range(3):
-                    Hcp[a, j, m] = H[a, j]
+        v = obs_var[m]
+        if v >= 0:
+            _camera_blocks(m, v, A, B, C, b0, b1, b2, x, y, z, cs, Hcp)
     for p in range(n_p):
         for i in range(3):
             for j in range(3):
@@ -223,47 +215,103 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
 
 
 @njit(cache=True, nogil=True)
-def times_blockdiag(W, V, free, cam_row, pt, n_p, Y):  # pragma: no cover - compiled
-    """``Y = W blockdiag(V)`` on the dense layout, only at the observed ``(camera, point)`` blocks
-    (elsewhere ``W`` and so ``Y`` are zero; ``Y`` keeps its zeros between calls). Same sums as the
-    dense ``einsum("ajp,jkp->akp")``: zero-initialized, over ``j`` in order."""
-    for q in range(free.shape[0]):
-        m = free[q]
-        p = pt[m]
-        r6 = 6 * cam_row[m]
-        for a in range(6):
-            w0 = W[r6 + a, p]
-            w1 = W[r6 + a, n_p + p]
-            w2 = W[r6 + a, 2 * n_p + p]
-            for k in range(3):
-                s = 0.0 + w0 * V[0, k, p]
-                s = s + w1 * V[1, k, p]
-                Y[r6 + a, k * n_p + p] = s + w2 * V[2, k, p]
+def reduced_camera_system(Hcp, V, gp, gc, pt_ptr, pt_obs, obs_var, S, bc, Y):  # pragma: no cover - compiled
+    """The point-eliminated camera system, summed per point over its observation pairs.
+
+    ``S = -sum_p sum_{i, j in obs(p)} W_i V_p W_j^T`` (6 x 6 blocks at cameras ``(c_i, c_j)``) and
+    ``bc = gc - sum_p sum_{i in obs(p)} W_i V_p gp_p`` (Triggs et al. 2000, Sec. 6.1), with the
+    coupling blocks ``W_i = Hcp[i]^T`` (``Hcp (M, 3, 6)``) of the free observations
+    ``pt_obs[pt_ptr[p]:pt_ptr[p + 1]]`` of point ``p`` and their variable camera ``obs_var``.
+    ``V (3, 3, P)`` is symmetric, so each unordered pair is computed once, into the block above the
+    diagonal; the blocks below are its transposes, copied at the end. ``Y (k_max, 3, 6)`` is scratch
+    for ``(W_i V_p)^T``. ``S (6 n_c, 6 n_c)`` is overwritten; the camera blocks ``U`` are the caller's.
+    """
+    S[:, :] = 0.0
+    for i in range(bc.shape[0]):
+        bc[i] = gc[i]
+    n_p = pt_ptr.shape[0] - 1
+    for p in range(n_p):
+        q0 = pt_ptr[p]
+        k = pt_ptr[p + 1] - q0
+        if k == 0:
+            continue
+        g0, g1, g2 = gp[0, p], gp[1, p], gp[2, p]
+        for a in range(k):
+            m = pt_obs[q0 + a]
+            r6 = 6 * obs_var[m]
+            for l in range(3):  # Y[a, l, :] = sum_j V[j, l] W[:, j]
+                v0, v1, v2 = V[0, l, p], V[1, l, p], V[2, l, p]
+                for i in range(6):
+                    Y[a, l, i] = Hcp[m, 0, i] * v0 + Hcp[m, 1, i] * v1 + Hcp[m, 2, i] * v2
+            for i in range(6):
+                bc[r6 + i] -= Y[a, 0, i] * g0 + Y[a, 1, i] * g1 + Y[a, 2, i] * g2
+        for a in range(k):
+            ra = 6 * obs_var[pt_obs[q0 + a]]
+            for b in range(a, k):
+                mb = pt_obs[q0 + b]
+                rb = 6 * obs_var[mb]
+                if ra < rb or b == a:  # the usual case (observations sorted by camera): upper block
+                    for i in range(6):
+                        y0 = Y[a, 0, i]
+                        y1 = Y[a, 1, i]
+                        y2 = Y[a, 2, i]
+                        for j in range(6):
+                            S[ra + i, rb + j] -= y0 * Hcp[mb, 0, j] + y1 * Hcp[mb, 1, j] + y2 * Hcp[mb, 2, j]
+                else:  # the transposed block (and both halves when one camera sees the point twice)
+                    for i in range(6):
+                        for j in range(6):
+                            s = Y[a, 0, i] * Hcp[mb, 0, j] + Y[a, 1, i] * Hcp[mb, 1, j] + Y[a, 2, i] * Hcp[mb, 2, j]
+                            S[rb + j, ra + i] -= s
+                            if ra == rb:
+                                S[ra + i, rb + j] -= s
+    n = S.shape[0]
+    for r in range(0, n, 6):
+        for c in range(r + 6, n, 6):
+            for i in range(6):
+                for j in range(6):
+                    S[c + j, r + i] = S[r + i, c + j]
+
+
+@njit(cache=True, nogil=True)
+def back_substitute(Hcp, V, gp, dc, pt_ptr, pt_obs, obs_var, dp):  # pragma: no cover - compiled
+    """Point steps ``dp_p = V_p (gp_p - sum_{i in obs(p)} W_i^T dc_{c_i})`` into ``dp (3, P)``
+    (layout as in :func:`reduced_camera_system`; ``dc (6 n_c,)``)."""
+    n_p = pt_ptr.shape[0] - 1
+    for p in range(n_p):
+        e0, e1, e2 = gp[0, p], gp[1, p], gp[2, p]
+        for q in range(pt_ptr[p], pt_ptr[p + 1]):
+            m = pt_obs[q]
+            r6 = 6 * obs_var[m]
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for i in range(6):
+                d = dc[r6 + i]
+                s0 += Hcp[m, 0, i] * d
+                s1 += Hcp[m, 1, i] * d
+                s2 += Hcp[m, 2, i] * d
+            e0 -= s0
+            e1 -= s1
+            e2 -= s2
+        for i in range(3):
+            dp[i, p] = V[i, 0, p] * e0 + V[i, 1, p] * e1 + V[i, 2, p] * e2
 
 
 def warm() -> None:
-    """Call each kernel once on a tiny problem with the argument types :mod:`schur_lm` passes, so the
-    first real call pays no loading (or compiling) of the cached machine code (~0.15 s)."""
-    n_c, n_p = 2, 2
-    cam = np.array([0, 0, 1], np.int64)
-    pt = np.array([0, 1, 1], np.int64)
-    m = len(cam)
-    R = np.ascontiguousarray(np.tile(np.eye(3), (n_c, 1, 1)))
-    t = np.zeros((n_c, 3))
-    X = np.array([[0.0, 0.0, 2.0], [0.5, -0.5, 3.0]])
-    meas_T = np.ascontiguousarray(np.array([[320.0, 240.0, 300.0]] * m).T)
-    baseline = np.full(m, 0.1)
-    stereo = np.ones(m, bool)
-    disparity = np.zeros(m, bool)
-    info = np.ones(m)
-    r, chi2, X_cam = np.empty((3, m)), np.empty(m), np.empty((3, m))
-    predict(R, t, X, cam, pt, meas_T, baseline, stereo, disparity, False, info, info, True,
-            500.0, 500.0, 320.0, 240.0, 1e-3, r, chi2, X_cam)
-    w_rows = np.ones((3, m))
-    cam_row = np.array([0, 0, 1], np.int64)
-    buf = np.zeros((6 * (n_c + 1), 3 * n_p))
-    Hpp, gp = np.empty((3, 3, n_p)), np.empty((3, n_p))
-    linearize(R, cam, pt, X_cam, r, chi2, w_rows, True, np.full(m, 5.0), baseline, disparity, False,
-              500.0, 500.0, True, cam_row, n_p, True, buf, np.empty((6, 3, 0)), np.empty((33, m)), Hpp, gp)
-    V = np.ascontiguousarray(np.tile(np.eye(3)[:, :, None], (1, 1, n_p)))
-    times_blockdiag(buf[: 6 * n_c], V, np.arange(m), cam_row, pt, n_p, np.zeros((6 * n_c, 3 * n_p)))
+    """Call every kernel once on a one-camera, one-point problem (loads or compiles them)."""
+    R = np.eye(3)[None].copy()
+    t = np.zeros((1, 3))
+    X = np.array([[0.0, 0.0, 2.0]])
+    i0 = np.zeros(1, np.int64)
+    ones, zeros, no = np.ones(1), np.zeros(1), np.zeros(1, np.bool_)
+    r, chi2, X_cam = np.empty((3, 1)), np.empty(1), np.empty((3, 1))
+    predict(R, t, X, i0, i0, np.ones((3, 1)), zeros, no, no, False, ones, ones, True, 1.0, 1.0, 0.0, 0.0,
+            1e-3, r, chi2, X_cam)
+    Hcp, cs, Hpp, gp = np.empty((1, 3, 6)), np.empty((1, 33)), np.empty((3, 3, 1)), np.empty((3, 1))
+    linearize(R, i0, i0, X_cam, r, chi2, np.ones((3, 1)), True, ones, zeros, no, False, 1.0, 1.0, i0, Hcp, cs,
+              Hpp, gp)
+    V = np.eye(3).reshape(3, 3, 1).copy()
+    ptr = np.array([0, 1], np.int64)
+    S, bc = np.empty((6, 6)), np.empty(6)
+    reduced_camera_system(Hcp, V, gp, np.zeros(6), ptr, i0, i0, S, bc, np.empty((1, 3, 6)))
+    back_substitute(Hcp, V, gp, np.zeros(6), ptr, i0, i0, np.empty((3, 1)))

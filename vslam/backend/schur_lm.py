@@ -22,12 +22,13 @@ Parametrization: the solver works on ``T_cam_world = (R, t)``; a step ``delta = 
 ``(u, v, u_right)`` with ``u = fx x/z + cx``, ``v = fy y/z + cy``, ``u_right = u - fx b / z``
 (rectified stereo, or RGB-D with a virtual baseline); monocular rows carry zero weight on ``u_right``.
 
-Implementation notes: the per-observation work (prediction, Jacobian products, point sums, the
-coupling ``W`` and ``W blockdiag(V)``) is one compiled loop each (:mod:`vslam.backend.schur_kernels`,
-numba, the NumPy expressions' exact operation order: bit-identical results, ~30 % less CPU per BA);
-per-observation outputs are component-major ``(a, M)`` rows; observations are sorted by camera so camera
-sums are one ``reduceat``. The coupling ``W`` is a dense array for local BA (Schur complement = one
-GEMM) and BSR block-sparse for large global BA. BLAS is held to one thread during a solve
+Implementation notes: the per-observation work (prediction, Jacobian products, point and camera
+sums, the coupling blocks ``W_i``) is one compiled loop each (:mod:`vslam.backend.schur_kernels`,
+numba); per-observation outputs are component-major ``(a, M)`` rows. The reduced camera system
+``S = U - sum_p sum_{i,j in obs(p)} W_i V_p W_j^T`` is summed per point over its observation pairs
+(local BA, 10 + 10 keyframes: ~30 000 pairs of 6 x 3 blocks, ~7x fewer multiply-adds than the dense
+``6 n_c x 3 P`` GEMM it replaced, 2-3x faster than a BSR sparse product on global problems), then
+solved densely. BLAS is held to one thread during a solve
 (threadpoolctl; process-wide while it runs): on a busy machine threaded GEMMs were 30x slower.
 """
 from __future__ import annotations
@@ -37,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse
+import scipy.linalg.lapack
 
 from vslam.backend import schur_kernels
 from vslam.geometry.lie import so3_exp
@@ -89,8 +90,6 @@ class Intrinsics:
     cy: float
 
 
-_DENSE_LIMIT = 6_000_000  # entries of the dense 6K x 3P coupling matrix before switching to sparse
-_DENSE_GEMM_LIMIT = 300_000_000  # multiply-adds of the dense Schur GEMM; above, BSR is faster (measured)
 _CONTROLLER = None
 
 
@@ -159,94 +158,42 @@ def _robust_cost(chi2: np.ndarray, active: np.ndarray, huber: np.ndarray | None)
     return float(np.sum(np.where(e <= k, c, 2.0 * k * e - k * k)))
 
 
-class _BlockW:
-    """The sparse coupling ``W`` as BSR matrices (6x3 blocks) plus its transpose (3x6 blocks)."""
-
-    def __init__(self, st: "_Structure", blocks: np.ndarray) -> None:
-        self.blocks = blocks  # (n_free_obs, 6, 3), camera-sorted observation order
-        self.W = scipy.sparse.bsr_matrix((blocks[st.order_w], st.pf[st.order_w], st.indptr_w), shape=st.shape_W)
-        self.WT = scipy.sparse.bsr_matrix(
-            (np.ascontiguousarray(blocks[st.order_t].transpose(0, 2, 1)), st.cf[st.order_t], st.indptr_t),
-            shape=st.shape_W[::-1],
-        )
-
-
 class _Structure:
-    """Index patterns that stay fixed over the iterations (built once per solve).
+    """Index patterns and buffers that stay fixed over the iterations (built once per solve).
 
-    Observations come sorted by camera, so per-camera sums are one ``np.add.reduceat``; per-point
-    sums are ``np.bincount``. The coupling matrix ``W (6 n_c x 3 n_p)`` (camera rows, point columns)
-    is dense while the Schur GEMM ``(6 n_c)^2 x 3 n_p`` stays cheap (local BA; columns component-major,
-    ``j * P + p``), and block-sparse (BSR, columns ``3 p + j``) for large global problems.
+    The coupling blocks ``Hcp (M, 3, 6)`` (``W_i^T``, one per observation, reused by every
+    linearization) are reduced per point over the observation pairs of its variable cameras
+    (:func:`schur_kernels.reduced_camera_system`): ``pt_obs[pt_ptr[p]:pt_ptr[p + 1]]`` are the
+    observations of point ``p`` by variable cameras, in camera order, ``obs_var`` each observation's
+    variable camera (``-1``: fixed).
     """
 
     def __init__(self, obs: Observations, cam_var: np.ndarray, n_var_cams: int, n_points: int) -> None:
         self.n_c, self.n_p = n_var_cams, n_points
-        var = cam_var[obs.cam]
-        self.free = np.flatnonzero(var >= 0)
-        self.pf = obs.pt[self.free]
-        self.cf = var[self.free]
-        self.pt = obs.pt
-        # observations arrive sorted by camera (see solve), so camera sums are one reduceat
-        if np.any(np.diff(obs.cam) < 0):
-            raise ValueError("schur_lm: observations must be sorted by camera")
-        cams, starts = np.unique(obs.cam, return_index=True)
-        self.seg_starts = starts
-        self.seg_var = cam_var[cams]  # variable index of each segment's camera (-1: fixed)
-        self.shape_W = (6 * n_var_cams, 3 * n_points)
-        entries = self.shape_W[0] * self.shape_W[1]
-        self.dense = entries <= _DENSE_LIMIT and entries * self.shape_W[0] <= _DENSE_GEMM_LIMIT
-        # row block of each observation's camera in the dense W; fixed cameras write to a discarded block
-        self.cam_row = np.where(var >= 0, var, n_var_cams)
-        if self.dense:
-            self.buf = np.zeros((6 * (n_var_cams + 1), 3 * n_points))
-            self._ybuf = np.zeros((6 * n_var_cams, 3 * n_points))  # W blockdiag(V); zero off the observed blocks
-        else:
-            self.buf = np.zeros((0, 0))
-            self.order_w = np.lexsort((self.pf, self.cf))
-            self.indptr_w = np.concatenate([[0], np.cumsum(np.bincount(self.cf, minlength=n_var_cams))])
-            self.order_t = np.lexsort((self.cf, self.pf))
-            self.indptr_t = np.concatenate([[0], np.cumsum(np.bincount(self.pf, minlength=n_points))])
+        self.obs_var = cam_var[obs.cam]
+        free = np.flatnonzero(self.obs_var >= 0)
+        pf = obs.pt[free]
+        self.pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pf, minlength=n_points))])
+        # camera-sorted observations: each point's in camera order (any order is correct, this one is faster)
+        self.pt_obs = free[np.argsort(pf, kind="stable")]
+        self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))
+        self._Y = np.empty((int(np.diff(self.pt_ptr).max(initial=0)), 3, 6))
+        self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
+        self._bc = np.empty(6 * n_var_cams)
 
-    def cam_sum(self, v: np.ndarray) -> np.ndarray:
-        """Per variable camera sums of ``(k, M)`` rows -> ``(n_c, k)``."""
-        seg = np.add.reduceat(v, self.seg_starts, axis=1)
-        out = np.zeros((self.n_c, v.shape[0]))
-        keep = self.seg_var >= 0
-        out[self.seg_var[keep]] = seg[:, keep].T
-        return out
+    def reduce(self, W: np.ndarray, V: np.ndarray, gp: np.ndarray, gc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``S = -W blockdiag(V) W^T`` (dense ``6 n_c x 6 n_c``; overwritten by the next call) and
+        ``bc = gc - W blockdiag(V) gp``, for the blocks ``W (M, 3, 6)`` and ``V (3, 3, P)``."""
+        schur_kernels.reduced_camera_system(W, np.ascontiguousarray(V), gp, gc, self.pt_ptr, self.pt_obs,
+                                            self.obs_var, self._S, self._bc, self._Y)
+        return self._S, self._bc
 
-    def to_cols(self, g: np.ndarray) -> np.ndarray:
-        """A ``(3, P)`` point vector in the column order of ``W``."""
-        return g.reshape(-1) if self.dense else g.T.reshape(-1)
-
-    def from_cols(self, v: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`to_cols`."""
-        return v.reshape(3, -1) if self.dense else v.reshape(-1, 3).T
-
-    def coupling(self, Hcp: np.ndarray):
-        """``W``: the dense buffer the linearization wrote, or :class:`_BlockW` from the per-observation
-        blocks ``Hcp (6, 3, M)``."""
-        if self.dense:
-            return self.buf[: self.shape_W[0]]
-        return _BlockW(self, np.ascontiguousarray(np.take(Hcp, self.free, axis=2).transpose(2, 0, 1)))
-
-    def times_blockdiag(self, W, V: np.ndarray):
-        """``Y = W @ blockdiag(V)`` for the point blocks ``V (3, 3, P)``."""
-        if self.dense:  # Y[:, k, p] = sum_j W[:, j, p] V[j, k, p], at the observed blocks only
-            schur_kernels.times_blockdiag(W, np.ascontiguousarray(V), self.free, self.cam_row, self.pt, self.n_p,
-                                          self._ybuf)
-            return self._ybuf
-        Yb = W.blocks @ np.take(V, self.pf, axis=2).transpose(2, 0, 1)
-        return scipy.sparse.bsr_matrix((Yb[self.order_w], self.pf[self.order_w], self.indptr_w), shape=self.shape_W)
-
-    def schur_product(self, Y, W) -> np.ndarray:
-        """Dense ``Y @ W^T`` (the point-eliminated part of the camera system)."""
-        return Y @ W.T if self.dense else (Y @ W.WT).toarray()
-
-    def wt_dot(self, W, dc: np.ndarray) -> np.ndarray:
-        """``W^T dc`` in column order."""
-        return W.T @ dc if self.dense else W.WT @ dc
+    def back_substitute(self, W: np.ndarray, V: np.ndarray, gp: np.ndarray, dc: np.ndarray) -> np.ndarray:
+        """Point steps ``dp = blockdiag(V) (gp - W^T dc)`` as ``(3, P)``."""
+        dp = np.empty((3, self.n_p))
+        schur_kernels.back_substitute(W, np.ascontiguousarray(V), gp, np.ascontiguousarray(dc), self.pt_ptr,
+                                      self.pt_obs, self.obs_var, dp)
+        return dp
 
 
 @dataclass
@@ -266,31 +213,26 @@ def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
     Jacobian is ``Jh R`` and the camera Jacobian ``Jh G`` with ``G = [I, -[X_cam]_x]``, so
     ``Hpp = R^T A R``, ``Hcp = G^T A R = [A R; [X]_x A R]``, ``Hcc = [[A, C^T], [C, -C [X]_x]]`` with
     ``C = [X]_x A``, ``gp = R^T b`` and ``gc = [b; X x b]`` (``Jh`` has six non-zeros, written out).
-    The per-observation products and the point sums are one compiled loop
-    (:func:`schur_kernels.linearize`); the camera sums one ``reduceat`` over its ``(33, M)`` summands;
-    no ``(M, 6, 6)`` stacked matmuls.
+    The per-observation products, the point sums and the camera sums (``(n_c, 33)``) are one
+    compiled loop (:func:`schur_kernels.linearize`); no ``(M, 6, 6)`` stacked matmuls.
     """
-    m = len(chi2)
     Hpp = np.empty((3, 3, st.n_p))
     gp = np.empty((3, st.n_p))
-    with_cams = st.n_c > 0
-    rows = np.empty((33, m) if with_cams else (33, 0))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6)
-    Hcp = np.empty((6, 3, m) if with_cams and not st.dense else (6, 3, 0))
+    sums = np.empty((st.n_c, 33))  # A (9), C = [X]_x A (9), -C [X]_x (9), g (6) summed per camera
     schur_kernels.linearize(
         np.ascontiguousarray(R, dtype=float), obs.cam, obs.pt, X_cam, r, chi2, w_rows, huber is not None,
         huber if huber is not None else chi2, obs.baseline, obs.disparity, obs.any_disparity, float(intr.fx),
-        float(intr.fy), with_cams, st.cam_row, st.n_p, st.dense, st.buf, Hcp, rows, Hpp, gp,
+        float(intr.fy), st.obs_var, st.Hcp, sums, Hpp, gp,
     )
-    if not with_cams:
+    if st.n_c == 0:
         return None, None, None, Hpp, gp
-    sums = st.cam_sum(rows)
     Hcc = np.empty((st.n_c, 6, 6))
     Hcc[:, :3, :3] = sums[:, :9].reshape(-1, 3, 3)
     Hcc[:, 3:, :3] = sums[:, 9:18].reshape(-1, 3, 3)
     Hcc[:, :3, 3:] = np.transpose(Hcc[:, 3:, :3], (0, 2, 1))
     Hcc[:, 3:, 3:] = sums[:, 18:27].reshape(-1, 3, 3)
     gc = sums[:, 27:33].reshape(-1)
-    return Hcc, gc, st.coupling(Hcp), Hpp, gp
+    return Hcc, gc, st.Hcp, Hpp, gp
 
 
 def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
@@ -308,19 +250,16 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
     V = _inv3(Hpp_d)
     if n_c == 0:
         return np.zeros((0, 6)), np.einsum("ijp,jp->ip", V, gp)
-    Y = st.times_blockdiag(W, V)
-    S = -st.schur_product(Y, W)
-    bc = gc - Y @ st.to_cols(gp)
+    S, bc = st.reduce(W, V, gp, gc)
     Hcc_d = Hcc.copy()
     Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
     idx = np.arange(n_c)
     S4 = S.reshape(n_c, 6, n_c, 6)
     S4[idx, :, idx, :] += Hcc_d
-    try:
-        dc = scipy.linalg.solve(S, bc, assume_a="pos", check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
+    _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
+    if info != 0:  # not positive definite (or invalid input)
         dc = np.linalg.lstsq(S, bc, rcond=None)[0]
-    dp = np.einsum("ijp,jp->ip", V, gp - st.from_cols(st.wt_dot(W, dc)))
+    dp = st.back_substitute(W, V, gp, dc)
     return dc.reshape(-1, 6), dp
 
 
@@ -340,7 +279,7 @@ def solve(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray,
 
 def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_initial, relative_tolerance, min_depth):
     R, t, X = R.copy(), t.copy(), X.copy()
-    order = np.argsort(obs.cam, kind="stable")  # camera-sorted observations: camera sums are contiguous
+    order = np.argsort(obs.cam, kind="stable")  # camera-sorted: locality, pairs in camera order
     obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order],
                        obs.info[order], obs.disparity[order], None if obs.uniform_info else obs.info_d[order])
     active = active[order]
