@@ -117,5 +117,6 @@ def hamming_nn_mutual(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def warm() -> None:
     """Compile / load the kernels once on tiny inputs."""
+    popcount64(np.uint64(3))
     hamming_nn_mutual(np.zeros((2, 8), np.uint8), np.ones((3, 8), np.uint8))
     hamming_nn_mutual(np.zeros((2, 32), np.uint8), np.ones((3, 32), np.uint8))

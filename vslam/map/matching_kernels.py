@@ -23,18 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _popcount64(x):  # pragma: no cover - compiled
-    x = x - ((x >> np.uint64(1)) & _M1)
-    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
-    x = (x + (x >> np.uint64(4))) & _M4
-    return (x * _H01) >> np.uint64(56)
+from vslam.features.match_kernels import popcount64
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -149,9 +138,9 @@ def select_matches(idx, n, free, map_desc, kp_desc, max_distance, use_max, ratio
             i = idx[p, col]
             v = inf
             if i < n and free[i]:
-                cntb = np.uint64(0)
+                cntb = np.int64(0)
                 for w in range(words):
-                    cntb += _popcount64(map_desc[p, w] ^ kp_desc[i, w])
+                    cntb += popcount64(map_desc[p, w] ^ kp_desc[i, w])
                 v = np.float32(cntb)
             if v < best:
                 second = best
