@@ -99,7 +99,7 @@ class ClosingConfig:
     max_descriptor_distance: float = param(64.0, "Hamming bits; worse descriptor matches are dropped")
     min_matches: int = param(20, "descriptor matches needed before RANSAC")
     align_threshold_m: float = param(0.05, "RGB-D/stereo 3D-3D RANSAC inlier distance, metres (times depth^2 beyond 1 m)")
-    align_threshold_rel: float = param(0.03, "monocular Sim(3) RANSAC inlier distance, fraction of the matched points' median distance")
+    align_threshold_rel: float = param(0.09, "monocular Sim(3) RANSAC inlier distance, fraction of the matched map points' median distance from their median point")
     search_radius_px: float = param(8.0, "guided matching radius at the estimated pose, pixels")
     min_inliers: int = param(40, "inliers after guided matching and refinement needed to accept a loop (RGB-D / stereo)")
     min_inliers_mono: int = param(40, "the same for monocular")

@@ -115,7 +115,8 @@ class VerifyParams:
         ratio, max_distance: descriptor matching (ratio + mutual) of step 1.
         min_matches: fewest descriptor matches; RANSAC needs ``max(min_matches // 2, 6)`` inliers.
         align_threshold_m: 3D-3D inlier distance at 1 m depth (grows with ``z^2``), metric sensors.
-        align_threshold_rel: monocular 3D-3D inlier distance relative to the median scene extent.
+        align_threshold_rel: monocular 3D-3D inlier distance, a fraction of the matched map points' median
+            distance from their median point (the scene's extent; the scale is unknown).
         search_radius_px, min_search_radius_px: guided matching radius of round 1; round 2 uses
             ``max(search_radius_px / 2, min_search_radius_px)``.
         scale_factor: ORB pyramid scale (per-octave sigma of the refinement).
@@ -130,7 +131,7 @@ class VerifyParams:
     max_distance: float = 64.0
     min_matches: int = 20
     align_threshold_m: float = 0.05
-    align_threshold_rel: float = 0.03
+    align_threshold_rel: float = 0.09
     search_radius_px: float = 8.0
     scale_factor: float = 1.2
     bf: float = 0.0
@@ -284,7 +285,7 @@ def _align_3d3d(feat: Features, kp: np.ndarray, X_world: np.ndarray, pids: np.nd
     if mono:
         # inlier distance relative to the scene depth on the candidate side (scale unknown)
         d = np.linalg.norm(dst - np.median(dst, axis=0), axis=1)
-        thr = p.align_threshold_rel * max(float(np.median(d)), 1e-6) * 3.0
+        thr = p.align_threshold_rel * max(float(np.median(d)), 1e-6)
     else:
         z = np.maximum(1.0, src[:, 2])
         thr = p.align_threshold_m * float(np.median(z)) ** 2
