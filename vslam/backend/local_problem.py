@@ -155,17 +155,22 @@ class LocalProblemBuilder:
         keep = ok_pt[inv]
         c = {k: v[keep] for k, v in c.items()}
         pt_ids = pt_ids[ok_pt]
-        used_kf = [k for k in kf_ids if np.any(c["kf"] == k)]
+        pt_rows = (np.cumsum(ok_pt) - 1)[inv[keep]]  # each kept observation's row in pt_ids
+        seen = np.zeros(max(kf_ids) + 1, bool)
+        seen[c["kf"]] = True
+        used_kf = [k for k in kf_ids if seen[k]]
         var_used = [k for k in var_ids if k in used_kf]
         if not var_used or len(pt_ids) == 0:
             return None
         fixed_used = [k for k in fixed_ids if k in used_kf]
+        kf_lut = np.zeros(max(kf_ids) + 1, np.int64)
+        kf_lut[used_kf] = np.arange(len(used_kf))
         problem = BAProblem(
             camera=self.camera, kf_ids=np.array(used_kf, np.int64),
             T_world_cam=np.stack([self.map.keyframes[k].T_world_cam for k in used_kf]),
             pt_ids=pt_ids, X_world=store.position[pt_ids], obs_kf=c["kf"], obs_pt=c["pt"], obs_uv=c["uv"],
             obs_sigma=c["sig"], obs_u_right=c["ur"], obs_depth=c["d"],
-            fixed_kf_ids=np.array(fixed_used, np.int64),
+            fixed_kf_ids=np.array(fixed_used, np.int64), obs_rows=(kf_lut[c["kf"]], pt_rows),
         )
         return problem, ProblemContext(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
                                  new_kf=new_kf, left_out=left_out)
