@@ -124,11 +124,11 @@ def test_warm_compiles_the_signatures_the_solver_calls():
     schur_kernels.warm()
     kernels = (schur_kernels.predict, schur_kernels.linearize, schur_kernels.reduced_camera_system,
                schur_kernels.back_substitute, schur_kernels.group_by_point, schur_kernels.robust_terms,
-               schur_kernels.damped_point_inverse)
-    assert [len(k.signatures) for k in kernels] == [1] * 7
+               schur_kernels.damped_point_inverse, schur_kernels.add_damped_camera_blocks)
+    assert [len(k.signatures) for k in kernels] == [1] * 8
     problem, _ = make_ba_problem(n_keyframes=4, n_points=40, sensor="rgbd", seed=2)
     local_bundle_adjustment(problem)
-    assert [len(k.signatures) for k in kernels] == [1] * 7
+    assert [len(k.signatures) for k in kernels] == [1] * 8
 
 
 def test_group_by_point_is_the_stable_argsort():
@@ -217,3 +217,22 @@ def test_prepared_solve_on_unsorted_observations_equals_the_sorted_one():
     assert again.iterations == fresh.iterations >= 1
     np.testing.assert_array_equal(again.X_world, fresh.X_world)
     np.testing.assert_array_equal(again.r_start, got.r)
+
+
+def test_damped_camera_blocks_are_the_numpy_expression_to_the_bit():
+    from vslam.backend import schur_kernels
+
+    rng = np.random.default_rng(8)
+    J = rng.normal(size=(4, 9, 6))
+    Hcc = np.einsum("kai,kaj->kij", J, J)
+    Hcc[1, 2, 2] = 0.0  # a floored diagonal
+    S0 = rng.normal(size=(24, 24))
+    lam = 0.37
+    ref = S0.copy()
+    Hcc_d = Hcc.copy()
+    Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
+    idx = np.arange(4)
+    ref.reshape(4, 6, 4, 6)[idx, :, idx, :] += Hcc_d
+    got = S0.copy()
+    schur_kernels.add_damped_camera_blocks(got, Hcc, lam)
+    np.testing.assert_array_equal(got, ref)

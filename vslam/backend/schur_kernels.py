@@ -361,6 +361,19 @@ def damped_point_inverse(Hpp, lam, V):  # pragma: no cover - compiled
         V[2, 0, p], V[2, 1, p], V[2, 2, p] = c20 / det, c21 / det, c22 / det
 
 
+@njit(cache=True, nogil=True)
+def add_damped_camera_blocks(S, Hcc, lam):  # pragma: no cover - compiled
+    """``S[6k:6k+6, 6k:6k+6] += Hcc_k + lam diag(max(diag Hcc_k, 1e-9))`` for the camera blocks
+    ``Hcc (n_c, 6, 6)`` (the Marquardt-damped ``U`` of the reduced system, as the NumPy it replaced)."""
+    for k in range(Hcc.shape[0]):
+        for i in range(6):
+            for j in range(6):
+                h = Hcc[k, i, j]
+                if i == j:
+                    h = h + lam * (h if not h < 1e-9 else 1e-9)
+                S[6 * k + i, 6 * k + j] += h
+
+
 def warm() -> None:
     """Call every kernel once on a one-camera, one-point problem (loads or compiles them)."""
     R = np.eye(3)[None].copy()
@@ -383,3 +396,4 @@ def warm() -> None:
     group_by_point(i0, i0, ptr, out.astype(np.int64))
     robust_terms(chi2, chi2, True, np.ones(1, np.bool_), True, ones, out)
     damped_point_inverse(Hpp, 1e-4, np.empty((3, 3, 1)))
+    add_damped_camera_blocks(S, np.ones((1, 6, 6)), 1e-4)

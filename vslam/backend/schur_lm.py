@@ -298,11 +298,7 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
     if n_c == 0:
         return np.zeros((0, 6)), np.einsum("ijp,jp->ip", V, gp)
     S, bc = st.reduce(W, V, gp, gc)
-    Hcc_d = Hcc.copy()
-    Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
-    idx = np.arange(n_c)
-    S4 = S.reshape(n_c, 6, n_c, 6)
-    S4[idx, :, idx, :] += Hcc_d
+    schur_kernels.add_damped_camera_blocks(S, Hcc, float(lam))  # S += blockdiag(Hcc damped)
     _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
     if info != 0:  # not positive definite (or invalid input)
         dc = np.linalg.lstsq(S, bc, rcond=None)[0]
