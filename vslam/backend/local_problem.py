@@ -152,10 +152,13 @@ class LocalProblemBuilder:
                     lo = (ok_pt & ~multi)[inv]
                     left_out = (c["pt"][lo], c["kf"][lo], c["uv"][lo])
                 ok_pt &= multi
-        keep = ok_pt[inv]
-        c = {k: v[keep] for k, v in c.items()}
-        pt_ids = pt_ids[ok_pt]
-        pt_rows = (np.cumsum(ok_pt) - 1)[inv[keep]]  # each kept observation's row in pt_ids
+        if ok_pt.all():  # (the arrays of c are this build's own: no copy needed)
+            pt_rows = inv  # each observation's row in pt_ids
+        else:
+            keep = ok_pt[inv]
+            c = {k: v[keep] for k, v in c.items()}
+            pt_ids = pt_ids[ok_pt]
+            pt_rows = (np.cumsum(ok_pt) - 1)[inv[keep]]  # each kept observation's row in pt_ids
         seen = np.zeros(max(kf_ids) + 1, bool)
         seen[c["kf"]] = True
         used_kf = [k for k in kf_ids if seen[k]]
