@@ -206,3 +206,19 @@ def test_problem_index_lookup_with_unsorted_ids_and_cached_observation_rows():
     np.testing.assert_array_equal(p.pt_index(rev_pt[[3, 0]]), [3, 0])
     with pytest.raises(GeometryError, match="unknown point"):
         p.pt_index(np.array([10**6]))
+
+
+def test_problem_observation_row_hint_is_checked_not_trusted():
+    problem, _ = make_ba_problem(sensor="stereo", n_points=50, seed=8)
+    kf_rows, pt_rows = problem.kf_index(problem.obs_kf.copy()), problem.pt_index(problem.obs_pt.copy())
+    good = dataclasses.replace(problem, obs_rows=(kf_rows, pt_rows))
+    assert good.obs_rows is None  # consumed
+    np.testing.assert_array_equal(good.pt_index(good.obs_pt), pt_rows)
+    np.testing.assert_array_equal(good.kf_index(good.obs_kf), kf_rows)
+    wrong = dataclasses.replace(problem, obs_rows=((kf_rows + 1) % problem.num_keyframes, pt_rows[::-1].copy()))
+    np.testing.assert_array_equal(wrong.pt_index(wrong.obs_pt), pt_rows)  # searched instead
+    np.testing.assert_array_equal(wrong.kf_index(wrong.obs_kf), kf_rows)
+    with pytest.raises(GeometryError, match="unknown point"):  # a hint does not bypass the id check
+        dataclasses.replace(problem, obs_pt=problem.obs_pt + 10**6, obs_rows=(kf_rows, pt_rows))
+    with pytest.raises(GeometryError, match="unique"):
+        dataclasses.replace(problem, pt_ids=np.sort(np.r_[problem.pt_ids[:-1], problem.pt_ids[0]]))

@@ -30,3 +30,24 @@ def test_member_keypoints_matches_the_numpy_selection():
     assert total_dups > 100  # the draws repeat points within a keyframe: the first keypoint wins
     # a tag already used marks every point taken: nothing left
     assert len(member_keypoints(pid, member, stamp, 5)) == 0 and len(member_keypoints(pid[:0], member, stamp, 6)) == 0
+
+
+def test_unit_ray_sums_is_the_numpy_bincount_to_the_bit():
+    from vslam.backend.local_problem import row_norms
+    from vslam.backend.local_problem_kernels import unit_ray_sums
+
+    rng = np.random.default_rng(9)
+    X = rng.normal(scale=5.0, size=(300, 3))
+    T = np.tile(np.eye(4), (6, 1, 1))
+    T[:, :3, 3] = rng.normal(size=(6, 3))
+    pt_row, kf_row = rng.integers(0, 300, 2000), rng.integers(0, 6, 2000)
+    X[pt_row[0]] = T[kf_row[0], :3, 3]  # a zero ray: the floored length
+    ray = X[pt_row] - T[kf_row, :3, 3]
+    dist_ref = row_norms(ray)
+    unit = ray / np.maximum(dist_ref, 1e-12)[:, None]
+    acc_ref = np.stack([np.bincount(pt_row, weights=unit[:, c], minlength=300) for c in range(3)], axis=1)
+    acc, dist = np.zeros((300, 3)), np.empty(2000)
+    unit_ray_sums(X, T, pt_row, kf_row, acc, dist)
+    np.testing.assert_array_equal(acc, acc_ref)
+    np.testing.assert_array_equal(dist, dist_ref)
+    assert dist[0] == 0.0

@@ -123,8 +123,116 @@ def test_warm_compiles_the_signatures_the_solver_calls():
 
     schur_kernels.warm()
     kernels = (schur_kernels.predict, schur_kernels.linearize, schur_kernels.reduced_camera_system,
-               schur_kernels.back_substitute)
-    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1]
+               schur_kernels.back_substitute, schur_kernels.group_by_point, schur_kernels.robust_terms,
+               schur_kernels.damped_point_inverse, schur_kernels.add_damped_camera_blocks)
+    assert [len(k.signatures) for k in kernels] == [1] * 8
     problem, _ = make_ba_problem(n_keyframes=4, n_points=40, sensor="rgbd", seed=2)
     local_bundle_adjustment(problem)
-    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1]
+    assert [len(k.signatures) for k in kernels] == [1] * 8
+
+
+def test_group_by_point_is_the_stable_argsort():
+    from vslam.backend import schur_kernels
+
+    rng = np.random.default_rng(5)
+    pf = rng.integers(0, 50, 400)
+    free = np.sort(rng.choice(1000, 400, replace=False))
+    ptr = np.zeros(51, np.int64)
+    np.cumsum(np.bincount(pf, minlength=50), out=ptr[1:])
+    out = np.empty(400, np.int64)
+    schur_kernels.group_by_point(free, pf, ptr, out)
+    np.testing.assert_array_equal(out, free[np.argsort(pf, kind="stable")])
+
+
+def test_robust_cost_is_the_numpy_expression_to_the_bit():
+    """Huber / plain, with points behind the camera (inf) counted 0 or 1e6 + 10 chi2_before."""
+    rng = np.random.default_rng(6)
+    chi2 = rng.exponential(4.0, 3000)
+    chi2[rng.choice(3000, 40, replace=False)] = np.inf
+    prev = rng.exponential(4.0, 3000)
+    prev[:20] = np.inf
+    chi2[:20] = np.inf  # both infinite: 1e6 + 0
+    active = rng.random(3000) < 0.9
+    huber = np.where(rng.random(3000) < 0.5, np.sqrt(5.991), np.sqrt(7.815))
+    for k in (huber, None):
+        c = np.where(np.isfinite(chi2), chi2, 0.0)
+        c_eval = np.where(np.isfinite(chi2), chi2, 1e6 + 10.0 * np.where(np.isfinite(prev), prev, 0.0))
+        costs = []
+        for cc, p in ((c, None), (c_eval, prev)):
+            a = cc[active]
+            ref = float(np.sum(a)) if k is None else float(np.sum(np.where(np.sqrt(a) <= k[active], a, 2.0 * k[active] * np.sqrt(a) - k[active] * k[active])))
+            got = schur_lm._robust_cost(chi2, active, k, prev=p)
+            assert got == ref
+            costs.append(got)
+        assert costs[1] > costs[0] + 20 * (1e6 if k is None else 2 * np.sqrt(5.991) * 999)
+
+
+def test_damped_point_inverse_is_the_numpy_expression_to_the_bit():
+    from vslam.backend import schur_kernels
+
+    rng = np.random.default_rng(7)
+    J = rng.normal(size=(200, 4, 3))
+    Hpp = np.ascontiguousarray(np.einsum("pki,pkj->ijp", J, J))
+    Hpp[:, :, 0] = 0.0  # an unobserved point: floored diagonal
+    for lam in (1e-4, 3.7, 1e3):
+        Hd = Hpp.copy()
+        iso = 0.01 * (Hpp[0, 0] + Hpp[1, 1] + Hpp[2, 2]) / 3.0
+        for i in range(3):
+            Hd[i, i] += lam * (np.maximum(Hpp[i, i], 1e-9) + iso)
+        V = np.empty_like(Hpp)
+        schur_kernels.damped_point_inverse(Hpp, lam, V)
+        np.testing.assert_array_equal(V, schur_lm._inv3(Hd))
+
+
+def test_prepared_solve_on_unsorted_observations_equals_the_sorted_one():
+    """Observations out of camera order are sorted once (``prepare``); the returned residuals are in
+    the caller's order and equal :func:`schur_lm.residuals` there; a second pass reusing them gives
+    the result of a fresh solve, to the bit."""
+    problem, _ = make_ba_problem(n_keyframes=5, n_points=60, sensor="rgbd", seed=4, noise_px=1.0)
+    obs = _observations(problem, LocalBAConfig())
+    perm = np.random.default_rng(3).permutation(len(obs.cam))
+    obs_u = schur_lm.Observations(obs.cam[perm], obs.pt[perm], obs.meas[perm], obs.baseline[perm],
+                                  obs.stereo[perm], obs.info[perm], obs.disparity[perm], obs.info_d[perm])
+    intr = schur_lm.Intrinsics(problem.camera.fx, problem.camera.fy, problem.camera.cx, problem.camera.cy)
+    cam_var = _cam_var(problem, problem.fixed_kf_ids)
+    R, t = _split_poses(problem.T_world_cam)
+    X = problem.X_world
+    huber = np.full(len(perm), 2.0)
+    active = np.ones(len(perm), bool)
+    ref = schur_lm.solve(R, t, X, cam_var, obs, intr, active, huber, 5)
+    pr = schur_lm.prepare(obs_u, cam_var, len(X))
+    assert pr.order is not None and schur_lm.prepare(obs, cam_var, len(X)).order is None
+    got = schur_lm.solve(R, t, X, cam_var, obs_u, intr, active, huber, 5, prepared=pr)
+    # within a camera the observations keep the caller's order: sums in another order, ~1e-15 apart
+    np.testing.assert_allclose(got.R_cam_world, ref.R_cam_world, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.X_world, ref.X_world, rtol=0, atol=1e-9)
+    r, chi2, _ = schur_lm.residuals(got.R_cam_world, got.t_cam_world, got.X_world, obs_u, intr, 1e-3)
+    np.testing.assert_array_equal(got.r, r)
+    np.testing.assert_array_equal(got.chi2, chi2)
+    np.testing.assert_allclose(got.chi2[np.argsort(perm)], ref.chi2, rtol=1e-6, atol=1e-9)
+    again = schur_lm.solve(got.R_cam_world, got.t_cam_world, got.X_world, cam_var, obs_u, intr, chi2 < 7.8, None, 3,
+                           prepared=pr)
+    fresh = schur_lm.solve(got.R_cam_world.copy(), got.t_cam_world, got.X_world, cam_var, obs_u, intr, chi2 < 7.8,
+                           None, 3)
+    assert again.iterations == fresh.iterations >= 1
+    np.testing.assert_array_equal(again.X_world, fresh.X_world)
+    np.testing.assert_array_equal(again.r_start, got.r)
+
+
+def test_damped_camera_blocks_are_the_numpy_expression_to_the_bit():
+    from vslam.backend import schur_kernels
+
+    rng = np.random.default_rng(8)
+    J = rng.normal(size=(4, 9, 6))
+    Hcc = np.einsum("kai,kaj->kij", J, J)
+    Hcc[1, 2, 2] = 0.0  # a floored diagonal
+    S0 = rng.normal(size=(24, 24))
+    lam = 0.37
+    ref = S0.copy()
+    Hcc_d = Hcc.copy()
+    Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
+    idx = np.arange(4)
+    ref.reshape(4, 6, 4, 6)[idx, :, idx, :] += Hcc_d
+    got = S0.copy()
+    schur_kernels.add_damped_camera_blocks(got, Hcc, lam)
+    np.testing.assert_array_equal(got, ref)

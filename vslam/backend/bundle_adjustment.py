@@ -103,8 +103,10 @@ def _chi2_thresholds(obs: schur_lm.Observations, config: LocalBAConfig) -> tuple
     return huber, chi2_max
 
 
-def _stats(problem, obs, intr, R, t, X, mask, min_depth) -> tuple[float, float]:
-    r, chi2, _ = schur_lm.residuals(R, t, X, obs, intr, min_depth)
+def _stats(problem, obs, intr, R, t, X, mask, min_depth, rc=None) -> tuple[float, float]:
+    """``(sum chi2, RMS pixel error)`` of the ``mask`` observations; ``rc``: their ``(r, chi2)`` from
+    :func:`schur_lm.residuals` at ``(R, t, X)`` when already known."""
+    r, chi2 = rc if rc is not None else schur_lm.residuals(R, t, X, obs, intr, min_depth)[:2]
     mask = mask & np.isfinite(chi2)  # a point behind the initial camera has no finite error
     if not np.any(mask):
         return 0.0, 0.0
@@ -199,16 +201,18 @@ def _run(problem: BAProblem, config: LocalBAConfig, fixed_ids: np.ndarray) -> BA
     huber, chi2_max = _chi2_thresholds(obs, config)
     R0, t0 = _split_poses(problem.T_world_cam)
     R, t, X = R0, t0, problem.X_world.copy()
+    prepared = schur_lm.prepare(obs, cam_var, len(X)) if config.solver != "gtsam" else None
     build_s = time.perf_counter() - t_start
     iterations = 0
     active = np.ones(problem.num_observations, bool)
+    now = start = None  # (r, chi2) at (R, t, X) and at the start, when a solve returned them
     passes = [(config.iterations_robust, huber), (config.iterations_refine, None)]
     for n_iter, kernel in passes:
         if n_iter == 0:
             continue
         if kernel is None and config.iterations_robust > 0:
             # second pass: drop the outliers of the first (ORB-SLAM2 LocalBundleAdjustment)
-            _, chi2, _ = schur_lm.residuals(R, t, X, obs, intr, config.min_depth)
+            chi2 = now[1] if now is not None else schur_lm.residuals(R, t, X, obs, intr, config.min_depth)[1]
             active = chi2 <= chi2_max
         if config.solver == "gtsam":
             # GTSAM throws on points behind a camera: leave those observations out of its graph
@@ -216,19 +220,24 @@ def _run(problem: BAProblem, config: LocalBAConfig, fixed_ids: np.ndarray) -> BA
             active = active & np.isfinite(chi2_now)
             R, t, X, it, b_s = _solve_gtsam(problem, obs, cam_var, R, t, X, active, kernel, n_iter, config)
             build_s += b_s
+            now = None
         else:
             res = schur_lm.solve(
                 R, t, X, cam_var, obs, intr, active, None if kernel is None else kernel, n_iter,
-                config.lambda_initial, config.relative_tolerance, config.min_depth,
+                config.lambda_initial, config.relative_tolerance, config.min_depth, prepared=prepared,
             )
+            if start is None and iterations == 0 and R is R0:
+                start = (res.r_start, res.chi2_start)
             R, t, X, it = res.R_cam_world, res.t_cam_world, res.X_world, res.iterations
+            now = (res.r, res.chi2)
         iterations += it
-    _, chi2, _ = schur_lm.residuals(R, t, X, obs, intr, config.min_depth)
-    inliers = chi2 <= chi2_max
+    if now is None:
+        now = schur_lm.residuals(R, t, X, obs, intr, config.min_depth)[:2]
+    inliers = now[1] <= chi2_max
     T_world_cam = _join_poses(R, t)
     T_world_cam[cam_var < 0] = problem.T_world_cam[cam_var < 0]
-    init_cost, init_rms = _stats(problem, obs, intr, R0, t0, problem.X_world, inliers, config.min_depth)
-    final_cost, final_rms = _stats(problem, obs, intr, R, t, X, inliers, config.min_depth)
+    init_cost, init_rms = _stats(problem, obs, intr, R0, t0, problem.X_world, inliers, config.min_depth, start)
+    final_cost, final_rms = _stats(problem, obs, intr, R, t, X, inliers, config.min_depth, now)
     total = time.perf_counter() - t_start
     result = BAResult(
         kf_ids=problem.kf_ids.copy(), T_world_cam=T_world_cam, pt_ids=problem.pt_ids.copy(), X_world=X,

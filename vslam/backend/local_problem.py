@@ -152,29 +152,42 @@ class LocalProblemBuilder:
                     lo = (ok_pt & ~multi)[inv]
                     left_out = (c["pt"][lo], c["kf"][lo], c["uv"][lo])
                 ok_pt &= multi
-        keep = ok_pt[inv]
-        c = {k: v[keep] for k, v in c.items()}
-        pt_ids = pt_ids[ok_pt]
-        used_kf = [k for k in kf_ids if np.any(c["kf"] == k)]
+        if ok_pt.all():  # (the arrays of c are this build's own: no copy needed)
+            pt_rows = inv  # each observation's row in pt_ids
+        else:
+            keep = ok_pt[inv]
+            c = {k: v[keep] for k, v in c.items()}
+            pt_ids = pt_ids[ok_pt]
+            pt_rows = (np.cumsum(ok_pt) - 1)[inv[keep]]  # each kept observation's row in pt_ids
+        seen = np.zeros(max(kf_ids) + 1, bool)
+        seen[c["kf"]] = True
+        used_kf = [k for k in kf_ids if seen[k]]
         var_used = [k for k in var_ids if k in used_kf]
         if not var_used or len(pt_ids) == 0:
             return None
         fixed_used = [k for k in fixed_ids if k in used_kf]
+        kf_lut = np.zeros(max(kf_ids) + 1, np.int64)
+        kf_lut[used_kf] = np.arange(len(used_kf))
         problem = BAProblem(
             camera=self.camera, kf_ids=np.array(used_kf, np.int64),
             T_world_cam=np.stack([self.map.keyframes[k].T_world_cam for k in used_kf]),
             pt_ids=pt_ids, X_world=store.position[pt_ids], obs_kf=c["kf"], obs_pt=c["pt"], obs_uv=c["uv"],
             obs_sigma=c["sig"], obs_u_right=c["ur"], obs_depth=c["d"],
-            fixed_kf_ids=np.array(fixed_used, np.int64),
+            fixed_kf_ids=np.array(fixed_used, np.int64), obs_rows=(kf_lut[c["kf"]], pt_rows),
         )
         return problem, ProblemContext(obs_idx=c["idx"], fixed=np.array(fixed_used, np.int64), n_rows=n_rows,
                                  new_kf=new_kf, left_out=left_out)
 
     def _gather(self, kf_ids: list[int], member: np.ndarray, n_rows: int) -> dict[str, list[np.ndarray]]:
         """Per keyframe, its observations of the points flagged in ``member``: keyframe, point,
-        keypoint index, undistorted pixel, sigma, virtual right coordinate (stereo), depth (RGB-D)."""
+        keypoint index, undistorted pixel, sigma, virtual right coordinate (stereo), depth (RGB-D).
+
+        Per keyframe only the gathers; the element-wise expressions (sigma, the depth and disparity
+        tests) run once on the concatenation (the same values, element by element)."""
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
         stamp = np.full(n_rows + 1, -1, np.int64)  # scratch of member_keypoints: the keyframe that took a point
+        stereo, rgbd = self.sensor == "stereo", self.sensor == "rgbd"
+        octave, u_l, u_r, depth, n_sel, kf_used = [], [], [], [], [], []
         for tag, kid in enumerate(kf_ids):
             k = self.map.keyframes[kid]
             pid = k.point_ids
@@ -182,27 +195,37 @@ class LocalProblemBuilder:
             sel = member_keypoints(np.asarray(pid, np.int64), member, stamp, tag)
             if len(sel) == 0:
                 continue
-            cols["kf"].append(np.full(len(sel), kid, np.int64))
+            n_sel.append(len(sel))
+            kf_used.append(kid)
             cols["pt"].append(pid[sel])
             cols["idx"].append(sel)
             cols["uv"].append(k.uv_undist[sel])
-            cols["sig"].append(np.power(self.scale_factor, k.octave[sel].astype(float)))
-            nan = np.full(len(sel), np.nan)
-            if self.sensor == "stereo" and k.u_right is not None:
-                # keep the measured disparity, expressed at the undistorted left column
-                disp = k.uv[sel, 0] - k.u_right[sel]
-                ok = np.isfinite(disp) & (disp > 0) & np.isfinite(k.depth[sel])
-                if self.config.stereo_far_baselines > 0:  # far points: the disparity is too weak, mono only
-                    ok &= k.depth[sel] < self.config.stereo_far_baselines * float(self.camera.baseline)
-                cols["ur"].append(np.where(ok, k.uv_undist[sel, 0] - disp, np.nan))
-                cols["d"].append(nan)
-            elif self.sensor == "rgbd":
-                d = k.depth[sel]
-                cols["ur"].append(nan)
-                cols["d"].append(np.where(np.isfinite(d) & (d > 0), d, np.nan))
-            else:
-                cols["ur"].append(nan)
-                cols["d"].append(nan)
+            octave.append(k.octave[sel])
+            if stereo:
+                # keep the measured disparity, expressed at the undistorted left column (NaN: mono rows)
+                u_l.append(k.uv[sel, 0])
+                u_r.append(k.u_right[sel] if k.u_right is not None else np.full(len(sel), np.nan))
+                depth.append(k.depth[sel] if k.u_right is not None else np.full(len(sel), np.nan))
+            elif rgbd:
+                depth.append(k.depth[sel])
+        if not n_sel:
+            return cols
+        cols["kf"] = [np.repeat(np.asarray(kf_used, np.int64), n_sel)]
+        cols["sig"] = [np.power(self.scale_factor, np.concatenate(octave).astype(float))]
+        nan = np.full(sum(n_sel), np.nan)
+        ur, d = nan, nan
+        if stereo:
+            uv_x = np.concatenate(cols["uv"])[:, 0]
+            dep = np.concatenate(depth)
+            disp = np.concatenate(u_l) - np.concatenate(u_r)
+            ok = np.isfinite(disp) & (disp > 0) & np.isfinite(dep)
+            if self.config.stereo_far_baselines > 0:  # far points: the disparity is too weak, mono only
+                ok &= dep < self.config.stereo_far_baselines * float(self.camera.baseline)
+            ur = np.where(ok, uv_x - disp, np.nan)
+        elif rgbd:
+            dep = np.concatenate(depth)
+            d = np.where(np.isfinite(dep) & (dep > 0), dep, np.nan)
+        cols["ur"], cols["d"] = [ur], [d]
         return cols
 
     def _centres(self, kf_ids: list[int], obs_kf: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
-"""Compiled (numba) kernel of :class:`vslam.backend.local_problem.LocalProblemBuilder`: which
-keypoints of a keyframe observe the points of a local BA, one observation per point.
+"""Compiled (numba) kernels of :class:`vslam.backend.local_problem.LocalProblemBuilder` (which
+keypoints of a keyframe observe the points of a local BA, one observation per point) and of the
+write-back (:func:`unit_ray_sums`, :meth:`vslam.backend.map_writeback.PointWriteback.update_normals`).
 
 It returns exactly the indices the NumPy expressions it replaces gave (``flatnonzero`` of the
 member test, then each point's first keypoint kept through ``np.unique(..., return_index=True)``),
@@ -27,6 +28,28 @@ def member_keypoints(point_ids, member, stamp, tag):  # pragma: no cover - compi
     return out[:n]
 
 
+@njit(cache=True, nogil=True)
+def unit_ray_sums(X_world, T_world_cam, pt_row, kf_row, acc, dist):  # pragma: no cover - compiled
+    """Per observation ``m`` the ray ``X_world[pt_row[m]] - centre(kf_row[m])``, its length into
+    ``dist (M,)`` (``sqrt(x x + y y + z z)``, as ``row_norms``) and the unit ray (length floored at
+    1e-12) summed per point into ``acc (P, 3)`` (zeros on entry) in observation order, as
+    ``np.bincount(pt_row, weights=unit[:, c])`` sums it."""
+    for m in range(pt_row.shape[0]):
+        p = pt_row[m]
+        k = kf_row[m]
+        x = X_world[p, 0] - T_world_cam[k, 0, 3]
+        y = X_world[p, 1] - T_world_cam[k, 1, 3]
+        z = X_world[p, 2] - T_world_cam[k, 2, 3]
+        d = np.sqrt(x * x + y * y + z * z)
+        dist[m] = d
+        s = d if not d < 1e-12 else 1e-12
+        acc[p, 0] += x / s
+        acc[p, 1] += y / s
+        acc[p, 2] += z / s
+
+
 def warm() -> None:
     """Load (or compile) the kernel on tiny inputs, so the first local BA pays nothing."""
     member_keypoints(np.array([0, -1, 1, 0], np.int64), np.array([True, False, False]), np.full(3, -1, np.int64), 0)
+    i0 = np.zeros(1, np.int64)
+    unit_ray_sums(np.ones((1, 3)), np.eye(4)[None].copy(), i0, i0, np.zeros((1, 3)), np.empty(1))

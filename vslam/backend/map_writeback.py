@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vslam.backend.local_problem import row_norms
+from vslam.backend.local_problem_kernels import unit_ray_sums
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.map import Map
@@ -72,13 +73,12 @@ class PointWriteback:
         store = self.map.points
         pt_row = problem.pt_index(problem.obs_pt)
         kf_row = problem.kf_index(problem.obs_kf)
-        T = result.T_world_cam
-        X = result.X_world[pt_row]
-        ray = X - T[kf_row, :3, 3]
-        dist = row_norms(ray)
-        unit = ray / np.maximum(dist, 1e-12)[:, None]
-        # per point the sum of its unit rays, in observation order (as np.add.at, faster)
-        acc = np.stack([np.bincount(pt_row, weights=unit[:, c], minlength=problem.num_points) for c in range(3)], axis=1)
+        # per observation the ray length, per point the sum of its unit rays in observation order (one
+        # compiled loop; the arithmetic of ray / max(|ray|, 1e-12) summed by np.bincount)
+        acc = np.zeros((problem.num_points, 3))
+        dist = np.empty(len(pt_row))
+        unit_ray_sums(np.ascontiguousarray(result.X_world, dtype=float),
+                      np.ascontiguousarray(result.T_world_cam, dtype=float), pt_row, kf_row, acc, dist)
         norm = row_norms(acc)
         ok = good & (norm > 1e-9)
         ids = problem.pt_ids[ok]

@@ -40,6 +40,17 @@ def _sort_order(ids: np.ndarray) -> np.ndarray | None:
     return None if np.all(ids[1:] > ids[:-1]) else np.argsort(ids, kind="stable")
 
 
+def _checked_rows(ids: np.ndarray, query: np.ndarray, rows: np.ndarray | None) -> np.ndarray | None:
+    """``rows`` when they are the positions of ``query`` in ``ids`` (``ids[rows] == query``), else None."""
+    if rows is None or len(query) == 0:
+        return None
+    rows = np.asarray(rows)
+    if (rows.dtype != np.int64 or rows.shape != query.shape or rows.min() < 0 or rows.max() >= len(ids)
+            or not np.array_equal(ids[rows], query)):
+        return None
+    return rows
+
+
 @dataclass
 class BAProblem:
     """A bundle-adjustment problem as flat arrays (see the module docstring)."""
@@ -56,6 +67,9 @@ class BAProblem:
     obs_u_right: np.ndarray | None = None
     obs_depth: np.ndarray | None = None
     fixed_kf_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    # optional hint: the rows ``(kf_index(obs_kf), pt_index(obs_pt))`` when the builder has them; checked
+    # (``kf_ids[rows] == obs_kf``, one gather) instead of searched, ignored when wrong; None once used
+    obs_rows: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.kf_ids = np.asarray(self.kf_ids, dtype=np.int64).reshape(-1)
@@ -94,7 +108,10 @@ class BAProblem:
         for name in ("obs_pt", "obs_uv", "obs_sigma", "obs_u_right", "obs_depth"):
             if getattr(self, name).shape[0] != m:
                 raise GeometryError(f"BA problem: {name} has {getattr(self, name).shape[0]} rows, obs_kf has {m}")
-        if len(np.unique(self.kf_ids)) != k or len(np.unique(self.pt_ids)) != p:
+        self._kf_order, self._pt_order = _sort_order(self.kf_ids), _sort_order(self.pt_ids)
+        # strictly increasing ids (order None) are unique
+        if ((self._kf_order is not None and len(np.unique(self.kf_ids)) != k)
+                or (self._pt_order is not None and len(np.unique(self.pt_ids)) != p)):
             raise GeometryError("BA problem: kf_ids and pt_ids must be unique")
         if not (np.all(np.isfinite(self.T_world_cam)) and np.all(np.isfinite(self.X_world)) and np.all(np.isfinite(self.obs_uv))):
             raise GeometryError("BA problem: T_world_cam, X_world and obs_uv must be finite (found NaN/inf)")
@@ -104,11 +121,14 @@ class BAProblem:
             raise GeometryError("BA problem: an observation has both obs_u_right and obs_depth; give one")
         if np.any(np.isfinite(self.obs_u_right)) and not (self.camera.baseline and self.camera.baseline > 0):
             raise GeometryError("BA problem: obs_u_right given but the camera has no stereo baseline")
-        self._kf_order, self._pt_order = _sort_order(self.kf_ids), _sort_order(self.pt_ids)
         self._rows = None
         self.kf_index(self.fixed_kf_ids)
         # the rows of every observation, resolved once (the solver and the write-back ask again)
-        rows = (self.kf_index(self.obs_kf), self.pt_index(self.obs_pt))
+        hint, self.obs_rows = self.obs_rows, None
+        kf_rows = _checked_rows(self.kf_ids, self.obs_kf, None if hint is None else hint[0])
+        pt_rows = _checked_rows(self.pt_ids, self.obs_pt, None if hint is None else hint[1])
+        rows = (self.kf_index(self.obs_kf) if kf_rows is None else kf_rows,
+                self.pt_index(self.obs_pt) if pt_rows is None else pt_rows)
         self._rows = (self.obs_kf, self.obs_pt, rows[0], rows[1])
         pairs = rows[0] * max(p, 1) + rows[1]
         # a count per (keyframe, point) cell when that table is small (local BA), else a sort

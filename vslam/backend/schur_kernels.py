@@ -297,6 +297,83 @@ def back_substitute(Hcp, V, gp, dc, pt_ptr, pt_obs, obs_var, dp):  # pragma: no 
             dp[i, p] = V[i, 0, p] * e0 + V[i, 1, p] * e1 + V[i, 2, p] * e2
 
 
+@njit(cache=True, nogil=True)
+def group_by_point(free, pf, pt_ptr, out):  # pragma: no cover - compiled
+    """``out = free[np.argsort(pf, kind="stable")]`` by a counting sort: the observations ``free`` of
+    each point ``pf`` in their given order, point after point (``pt_ptr``: the point offsets)."""
+    pos = pt_ptr[:-1].copy()
+    for i in range(free.shape[0]):
+        p = pf[i]
+        out[pos[p]] = free[i]
+        pos[p] += 1
+
+
+@njit(cache=True, nogil=True)
+def robust_terms(chi2, prev, use_prev, active, use_huber, huber, out):  # pragma: no cover - compiled
+    """The cost terms of the ``active`` observations, compacted into ``out``; returns their number.
+
+    A non-finite ``chi2`` counts ``1e6 + 10 prev`` (``prev`` 0 where not finite) when ``use_prev``,
+    else 0; with ``use_huber`` a term is Huber's ``rho``: ``c`` for ``sqrt(c) <= k``, else
+    ``2 k sqrt(c) - k^2`` (the NumPy expressions of ``schur_lm._robust_cost``, element by element).
+    """
+    n = 0
+    for m in range(chi2.shape[0]):
+        if not active[m]:
+            continue
+        c = chi2[m]
+        if not np.isfinite(c):
+            if use_prev:
+                q = prev[m]
+                c = 1e6 + 10.0 * (q if np.isfinite(q) else 0.0)
+            else:
+                c = 0.0
+        if use_huber:
+            k = huber[m]
+            e = np.sqrt(c)
+            if not e <= k:
+                c = 2.0 * k * e - k * k
+        out[n] = c
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def damped_point_inverse(Hpp, lam, V):  # pragma: no cover - compiled
+    """``V_p = (Hpp_p + lam diag(max(diag Hpp_p, 1e-9) + iso_p))^-1`` with ``iso_p = 0.01 tr(Hpp_p) / 3``
+    for ``Hpp (3, 3, P)``, by the adjugate (the arithmetic of ``schur_lm._inv3``, term by term)."""
+    for p in range(Hpp.shape[2]):
+        iso = 0.01 * (Hpp[0, 0, p] + Hpp[1, 1, p] + Hpp[2, 2, p]) / 3.0
+        h = Hpp[0, 0, p]
+        a = h + lam * ((h if not h < 1e-9 else 1e-9) + iso)
+        h = Hpp[1, 1, p]
+        e = h + lam * ((h if not h < 1e-9 else 1e-9) + iso)
+        h = Hpp[2, 2, p]
+        i = h + lam * ((h if not h < 1e-9 else 1e-9) + iso)
+        b, c = Hpp[0, 1, p], Hpp[0, 2, p]
+        d, f = Hpp[1, 0, p], Hpp[1, 2, p]
+        g, k = Hpp[2, 0, p], Hpp[2, 1, p]
+        c00, c01, c02 = e * i - f * k, c * k - b * i, b * f - c * e
+        c10, c11, c12 = f * g - d * i, a * i - c * g, c * d - a * f
+        c20, c21, c22 = d * k - e * g, b * g - a * k, a * e - b * d
+        det = a * c00 + b * c10 + c * c20
+        V[0, 0, p], V[0, 1, p], V[0, 2, p] = c00 / det, c01 / det, c02 / det
+        V[1, 0, p], V[1, 1, p], V[1, 2, p] = c10 / det, c11 / det, c12 / det
+        V[2, 0, p], V[2, 1, p], V[2, 2, p] = c20 / det, c21 / det, c22 / det
+
+
+@njit(cache=True, nogil=True)
+def add_damped_camera_blocks(S, Hcc, lam):  # pragma: no cover - compiled
+    """``S[6k:6k+6, 6k:6k+6] += Hcc_k + lam diag(max(diag Hcc_k, 1e-9))`` for the camera blocks
+    ``Hcc (n_c, 6, 6)`` (the Marquardt-damped ``U`` of the reduced system, as the NumPy it replaced)."""
+    for k in range(Hcc.shape[0]):
+        for i in range(6):
+            for j in range(6):
+                h = Hcc[k, i, j]
+                if i == j:
+                    h = h + lam * (h if not h < 1e-9 else 1e-9)
+                S[6 * k + i, 6 * k + j] += h
+
+
 def warm() -> None:
     """Call every kernel once on a one-camera, one-point problem (loads or compiles them)."""
     R = np.eye(3)[None].copy()
@@ -315,3 +392,8 @@ def warm() -> None:
     S, bc = np.empty((6, 6)), np.empty(6)
     reduced_camera_system(Hcp, V, gp, np.zeros(6), ptr, i0, i0, S, bc, np.empty((1, 3, 6)))
     back_substitute(Hcp, V, gp, np.zeros(6), ptr, i0, i0, np.empty((3, 1)))
+    out = np.empty(1)
+    group_by_point(i0, i0, ptr, out.astype(np.int64))
+    robust_terms(chi2, chi2, True, np.ones(1, np.bool_), True, ones, out)
+    damped_point_inverse(Hpp, 1e-4, np.empty((3, 3, 1)))
+    add_damped_camera_blocks(S, np.ones((1, 6, 6)), 1e-4)

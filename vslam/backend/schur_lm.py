@@ -149,13 +149,15 @@ def residuals(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndar
     return r.T, chi2, X_cam.T
 
 
-def _robust_cost(chi2: np.ndarray, active: np.ndarray, huber: np.ndarray | None) -> float:
-    c = chi2[active]
-    if huber is None:
-        return float(np.sum(c))
-    k = huber[active]
-    e = np.sqrt(c)
-    return float(np.sum(np.where(e <= k, c, 2.0 * k * e - k * k)))
+def _robust_cost(chi2: np.ndarray, active: np.ndarray, huber: np.ndarray | None, prev: np.ndarray | None = None) -> float:
+    """Sum over the ``active`` observations of ``chi2`` (Huber's ``rho`` of it when ``huber`` is given);
+    a non-finite ``chi2`` counts 0, or ``1e6 + 10 prev`` when ``prev`` is given (a point pushed behind a
+    camera must not look like a cost decrease). The terms come compacted from one compiled loop
+    (:func:`schur_kernels.robust_terms`) and are summed by ``np.sum`` (pairwise, as before)."""
+    out = np.empty(len(chi2))
+    n = schur_kernels.robust_terms(chi2, chi2 if prev is None else prev, prev is not None, active,
+                                   huber is not None, chi2 if huber is None else huber, out)
+    return float(np.sum(out[:n]))
 
 
 class _Structure:
@@ -173,9 +175,11 @@ class _Structure:
         self.obs_var = cam_var[obs.cam]
         free = np.flatnonzero(self.obs_var >= 0)
         pf = obs.pt[free]
-        self.pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pf, minlength=n_points))])
+        self.pt_ptr = np.zeros(n_points + 1, np.int64)
+        np.cumsum(np.bincount(pf, minlength=n_points), out=self.pt_ptr[1:])
         # camera-sorted observations: each point's in camera order (any order is correct, this one is faster)
-        self.pt_obs = free[np.argsort(pf, kind="stable")]
+        self.pt_obs = np.empty(len(free), np.int64)
+        schur_kernels.group_by_point(free, pf, self.pt_ptr, self.pt_obs)
         self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))
         self._Y = np.empty((int(np.diff(self.pt_ptr).max(initial=0)), 3, 6))
         self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
@@ -204,6 +208,51 @@ class LMResult:
     iterations: int
     initial_cost: float
     final_cost: float
+    # residuals (M, 3) and chi2 (M,) at the returned estimate and at the start, in the caller's
+    # observation order: what :func:`residuals` gives there, to the bit
+    r: np.ndarray | None = None
+    chi2: np.ndarray | None = None
+    r_start: np.ndarray | None = None
+    chi2_start: np.ndarray | None = None
+
+
+class Prepared:
+    """What :func:`solve` derives from the observations and the camera variables alone, built once
+    for the passes of one bundle adjustment (:func:`prepare`): the camera-sorted observations (the
+    caller's when already sorted, the usual case), their order, the :class:`_Structure`, and the
+    residuals at the last estimate a solve returned (the next pass starts there)."""
+
+    def __init__(self, obs: Observations, cam_var: np.ndarray, n_points: int) -> None:
+        cam = obs.cam
+        self.order = None if np.all(cam[1:] >= cam[:-1]) else np.argsort(cam, kind="stable")
+        if self.order is not None:  # camera-sorted: locality, pairs in camera order
+            o = self.order
+            obs = Observations(obs.cam[o], obs.pt[o], obs.meas[o], obs.baseline[o], obs.stereo[o], obs.info[o],
+                               obs.disparity[o], None if obs.uniform_info else obs.info_d[o])
+        self.obs = obs
+        self.cam_var = cam_var
+        self.n_points = n_points
+        self.var_rows = np.flatnonzero(cam_var >= 0)
+        self.st = _Structure(obs, cam_var, int(cam_var.max(initial=-1)) + 1, n_points)
+        self.last: tuple | None = None  # (R, t, X, r, chi2, X_cam) of the last returned estimate (sorted order)
+
+    def sorted_(self, a: np.ndarray | None) -> np.ndarray | None:
+        """``a`` (per observation, caller's order) in the solver's order."""
+        return a if a is None or self.order is None else a[self.order]
+
+    def unsorted(self, r: np.ndarray, chi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``r (3, M)``, ``chi2 (M,)`` back in the caller's order, as :func:`residuals` returns them."""
+        if self.order is None:
+            return r.T, chi2
+        r_out, chi2_out = np.empty_like(r), np.empty_like(chi2)
+        r_out[:, self.order] = r
+        chi2_out[self.order] = chi2
+        return r_out.T, chi2_out
+
+
+def prepare(obs: Observations, cam_var: np.ndarray, n_points: int) -> Prepared:
+    """The per-problem setup of :func:`solve`, to share between its passes."""
+    return Prepared(obs, cam_var, n_points)
 
 
 def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
@@ -241,21 +290,15 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
     Returns ``dc (n_c, 6)`` and ``dp (3, P)``.
     """
     n_c = st.n_c
-    Hpp_d = Hpp.copy()
     # Marquardt damping plus an isotropic share (1 % of the mean diagonal): a monocular point seen once
-    # (or with tiny parallax) has a near-null depth direction that diag(H) alone would leave undamped
-    iso = 0.01 * (Hpp[0, 0] + Hpp[1, 1] + Hpp[2, 2]) / 3.0
-    for i in range(3):
-        Hpp_d[i, i] += lam * (np.maximum(Hpp[i, i], 1e-9) + iso)
-    V = _inv3(Hpp_d)
+    # (or with tiny parallax) has a near-null depth direction that diag(H) alone would leave undamped;
+    # the damped blocks inverted by the adjugate (as _inv3) in one compiled loop
+    V = np.empty_like(Hpp)
+    schur_kernels.damped_point_inverse(Hpp, float(lam), V)
     if n_c == 0:
         return np.zeros((0, 6)), np.einsum("ijp,jp->ip", V, gp)
     S, bc = st.reduce(W, V, gp, gc)
-    Hcc_d = Hcc.copy()
-    Hcc_d[:, range(6), range(6)] += lam * np.maximum(np.einsum("kii->ki", Hcc), 1e-9)
-    idx = np.arange(n_c)
-    S4 = S.reshape(n_c, 6, n_c, 6)
-    S4[idx, :, idx, :] += Hcc_d
+    schur_kernels.add_damped_camera_blocks(S, Hcc, float(lam))  # S += blockdiag(Hcc damped)
     _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
     if info != 0:  # not positive definite (or invalid input)
         dc = np.linalg.lstsq(S, bc, rcond=None)[0]
@@ -266,32 +309,46 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
 def solve(R_cam_world: np.ndarray, t_cam_world: np.ndarray, X_world: np.ndarray, cam_var: np.ndarray,
           obs: Observations, intr: Intrinsics, active: np.ndarray, huber: np.ndarray | None,
           max_iterations: int, lambda_initial: float = 1e-4, relative_tolerance: float = 1e-7,
-          min_depth: float = 1e-3) -> LMResult:
+          min_depth: float = 1e-3, prepared: Prepared | None = None) -> LMResult:
     """Run LM on cameras with ``cam_var >= 0`` (their variable index) and all points.
 
     ``active (M,)`` selects the observations used; ``huber (M,)`` the per-observation Huber threshold
     on ``sqrt(chi2)`` (``None``: plain least squares). Cameras with ``cam_var < 0`` stay fixed.
+    ``prepared``: :func:`prepare` of the same ``obs`` and ``cam_var`` (built here when None); a solve
+    starting at the estimate the previous one returned (the same arrays) reuses its residuals.
     """
+    if prepared is None:
+        prepared = Prepared(obs, cam_var, len(X_world))
+    elif prepared.n_points != len(X_world) or len(prepared.obs.cam) != len(obs.cam):
+        raise ValueError("schur_lm.solve: `prepared` was built for another problem")
     with _blas_single_thread():
-        return _solve(R_cam_world, t_cam_world, X_world, cam_var, obs, intr, active, huber, max_iterations,
-                      lambda_initial, relative_tolerance, min_depth)
+        return _solve(R_cam_world, t_cam_world, X_world, prepared, intr, prepared.sorted_(active),
+                      prepared.sorted_(huber), max_iterations, lambda_initial, relative_tolerance, min_depth)
 
 
-def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_initial, relative_tolerance, min_depth):
-    R, t, X = R.copy(), t.copy(), X.copy()
-    order = np.argsort(obs.cam, kind="stable")  # camera-sorted: locality, pairs in camera order
-    obs = Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order], obs.stereo[order],
-                       obs.info[order], obs.disparity[order], None if obs.uniform_info else obs.info_d[order])
-    active = active[order]
-    huber = None if huber is None else huber[order]
-    n_c = int(cam_var.max(initial=-1)) + 1
-    st = _Structure(obs, cam_var, n_c, len(X))
-    var_rows = np.flatnonzero(cam_var >= 0)
+def _step(R, t, X, dc, dp, pr):
+    """``R <- Exp(phi) R``, ``t <- Exp(phi) t + rho`` for the variable cameras, ``X <- X + dp``."""
+    var_rows, cam_var = pr.var_rows, pr.cam_var
+    R_new, t_new = R.copy(), t.copy()
+    dR = so3_exp(dc[cam_var[var_rows], 3:])
+    R_new[var_rows] = dR @ R[var_rows]
+    t_new[var_rows] = np.einsum("kij,kj->ki", dR, t[var_rows]) + dc[cam_var[var_rows], :3]
+    return R_new, t_new, X + dp.T
+
+
+def _solve(R_in, t_in, X_in, pr, intr, active, huber, max_iterations, lambda_initial, relative_tolerance, min_depth):
+    obs, st = pr.obs, pr.st
+    last = pr.last
+    if last is not None and last[0] is R_in and last[1] is t_in and last[2] is X_in:
+        R, t, X, r, chi2, X_cam = last
+    else:
+        R, t, X = R_in.copy(), t_in.copy(), X_in.copy()
+        r, chi2, X_cam = _predict(R, t, X, obs, intr, min_depth)
     act = active.astype(float) * obs.info
     w_rows = np.stack([act, act, act * obs.stereo if obs.uniform_info else active * obs.info_d * obs.stereo])
     lam = lambda_initial
-    r, chi2, X_cam = _predict(R, t, X, obs, intr, min_depth)
-    cost = _robust_cost(np.where(np.isfinite(chi2), chi2, 0.0), active, huber)
+    start = pr.unsorted(r, chi2)
+    cost = _robust_cost(chi2, active, huber)
     initial_cost = cost
     iterations = 0
     for _ in range(max_iterations):
@@ -299,25 +356,25 @@ def _solve(R, t, X, cam_var, obs, intr, active, huber, max_iterations, lambda_in
         Hcc, gc, W, Hpp, gp = _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st)
         while True:
             dc, dp = _solve_damped(Hcc, gc, W, Hpp, gp, lam, st)
-            R_new, t_new = R.copy(), t.copy()
-            dR = so3_exp(dc[cam_var[var_rows], 3:])
-            R_new[var_rows] = dR @ R[var_rows]
-            t_new[var_rows] = np.einsum("kij,kj->ki", dR, t[var_rows]) + dc[cam_var[var_rows], :3]
-            X_new = X + dp.T
+            R_new, t_new, X_new = _step(R, t, X, dc, dp, pr)
             r_new, chi2_new, X_cam_new = _predict(R_new, t_new, X_new, obs, intr, min_depth)
-            # a point pushed behind a camera must not look like a cost decrease
-            c_eval = np.where(np.isfinite(chi2_new), chi2_new, 1e6 + 10.0 * np.where(np.isfinite(chi2), chi2, 0.0))
-            new_cost = _robust_cost(c_eval, active, huber)
+            new_cost = _robust_cost(chi2_new, active, huber, prev=chi2)
             if new_cost < cost:
                 break
             lam *= 10.0
             if lam > 1e10:
                 LOG.debug("LM: damping exhausted after %d iterations (cost %.6g)", iterations, cost)
-                return LMResult(R, t, X, iterations, initial_cost, cost)
+                return _result(pr, R, t, X, r, chi2, X_cam, iterations, initial_cost, cost, start)
         decrease = cost - new_cost
         LOG.debug("LM iteration %d: cost %.6g -> %.6g (lambda %.1e)", iterations, cost, new_cost, lam)
         R, t, X, r, chi2, X_cam, cost = R_new, t_new, X_new, r_new, chi2_new, X_cam_new, new_cost
         lam = max(lam / 10.0, 1e-12)
         if decrease <= relative_tolerance * max(cost + decrease, 1e-12):
             break
-    return LMResult(R, t, X, iterations, initial_cost, cost)
+    return _result(pr, R, t, X, r, chi2, X_cam, iterations, initial_cost, cost, start)
+
+
+def _result(pr, R, t, X, r, chi2, X_cam, iterations, initial_cost, cost, start) -> LMResult:
+    pr.last = (R, t, X, r, chi2, X_cam)
+    r_out, chi2_out = pr.unsorted(r, chi2)
+    return LMResult(R, t, X, iterations, initial_cost, cost, r_out, chi2_out, start[0], start[1])
