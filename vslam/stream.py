@@ -85,9 +85,14 @@ def warm_kernels(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     takes alone became 0.6-1.3 s in a thread beside the System's construction and the first
     frames (the two threads compete for the GIL) and slowed those frames down."""
     t0 = time.perf_counter()
+    announced = False
     for name in modules:
         try:
             importlib.import_module(name).warm()
         except Exception:  # never fail a run over a start-up optimization
             log.warning("warming the kernels of %s failed", name, exc_info=True)
-    return round(1000.0 * (time.perf_counter() - t0), 1)
+        if not announced and time.perf_counter() - t0 > 1.0:  # numba is compiling: a fresh install
+            log.info("first run: compiling the numeric kernels (10-20 s, once; cached for the next runs)")
+            announced = True
+    seconds = time.perf_counter() - t0
+    return round(1000.0 * seconds, 1)
