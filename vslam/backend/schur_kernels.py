@@ -19,6 +19,12 @@ from numba import njit
 # ``(i, k)`` index arrays are small: the kernels unroll the 3 x 3 products by hand
 
 
+# Isotropic share of the point damping: lambda (max(diag Hpp, 1e-9) + ISOTROPIC_SHARE tr(Hpp) / 3). A monocular
+# point seen once (or with tiny parallax) has a near-null depth direction that diag(Hpp) alone would leave
+# undamped. (numba reads module globals as compile-time constants.)
+ISOTROPIC_SHARE = 0.01
+
+
 @njit(cache=True, nogil=True)
 def predict(R, t, X, cam, pt, meas_T, baseline, stereo, disparity, any_disparity, info, info_d, uniform,
             fx, fy, cx, cy, min_depth, r, chi2, X_cam):  # pragma: no cover - compiled
@@ -342,7 +348,7 @@ def damped_point_inverse(Hpp, lam, V):  # pragma: no cover - compiled
     """``V_p = (Hpp_p + lam diag(max(diag Hpp_p, 1e-9) + iso_p))^-1`` with ``iso_p = 0.01 tr(Hpp_p) / 3``
     for ``Hpp (3, 3, P)``, by the adjugate (the arithmetic of ``schur_lm._inv3``, term by term)."""
     for p in range(Hpp.shape[2]):
-        iso = 0.01 * (Hpp[0, 0, p] + Hpp[1, 1, p] + Hpp[2, 2, p]) / 3.0
+        iso = ISOTROPIC_SHARE * (Hpp[0, 0, p] + Hpp[1, 1, p] + Hpp[2, 2, p]) / 3.0
         h = Hpp[0, 0, p]
         a = h + lam * ((h if not h < 1e-9 else 1e-9) + iso)
         h = Hpp[1, 1, p]

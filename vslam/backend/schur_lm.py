@@ -91,6 +91,12 @@ class Intrinsics:
 
 
 _CONTROLLER = None
+# Marquardt's damping policy (Marquardt 1963; Nocedal & Wright, Numerical Optimization, Sec. 10.3):
+# a rejected step multiplies lambda by LAMBDA_FACTOR and retries, an accepted one divides it (not below
+# LAMBDA_MIN); past LAMBDA_MAX the step is below rounding and the pass stops ("damping exhausted").
+LAMBDA_FACTOR = 10.0
+LAMBDA_MAX = 1e10
+LAMBDA_MIN = 1e-12
 
 
 def _blas_single_thread():
@@ -361,14 +367,14 @@ def _solve(R_in, t_in, X_in, pr, intr, active, huber, max_iterations, lambda_ini
             new_cost = _robust_cost(chi2_new, active, huber, prev=chi2)
             if new_cost < cost:
                 break
-            lam *= 10.0
-            if lam > 1e10:
+            lam *= LAMBDA_FACTOR
+            if lam > LAMBDA_MAX:
                 LOG.debug("LM: damping exhausted after %d iterations (cost %.6g)", iterations, cost)
                 return _result(pr, R, t, X, r, chi2, X_cam, iterations, initial_cost, cost, start)
         decrease = cost - new_cost
         LOG.debug("LM iteration %d: cost %.6g -> %.6g (lambda %.1e)", iterations, cost, new_cost, lam)
         R, t, X, r, chi2, X_cam, cost = R_new, t_new, X_new, r_new, chi2_new, X_cam_new, new_cost
-        lam = max(lam / 10.0, 1e-12)
+        lam = max(lam / LAMBDA_FACTOR, LAMBDA_MIN)
         if decrease <= relative_tolerance * max(cost + decrease, 1e-12):
             break
     return _result(pr, R, t, X, r, chi2, X_cam, iterations, initial_cost, cost, start)
