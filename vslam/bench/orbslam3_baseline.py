@@ -66,7 +66,7 @@ _CHILD_IMPORTS = "import pyorbslam3, numpy, scipy, cv2, yaml, vslam.datasets"
 SETUP_HELP = (
     "make a separate virtual environment for it (never install pyorbslam3 into vslam's own: it is "
     "GPL-3.0 and may replace cv2): python3.11 -m venv orbvenv && orbvenv/bin/pip install "
-    "pyorbslam3==0.1.1 numpy==2.4.6 scipy==1.17.1 opencv-contrib-python-headless==4.14.0.94 pyyaml==6.0.3; "
+    "pyorbslam3==0.1.1 numpy==2.4.6 scipy==1.17.1 opencv-contrib-python-headless==4.14.0.94 pyyaml==6.0.3 numba==0.68.1; "
     f"then pass --baseline-python orbvenv/bin/python (or set {PYTHON_ENV})"
 )
 
