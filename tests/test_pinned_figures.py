@@ -83,7 +83,10 @@ def sevenscenes_localization(shared_data, tmp_path_factory):
 
 
 def test_7scenes_localization(sevenscenes_localization):
-    """Measured 369/400 localized (355 tracked, 14 relocalized), 31 lost, ATE 0.04550 m. History:
+    """Measured 367/400 localized (353 tracked, 14 relocalized), 33 lost, ATE 0.04961 m. History:
+    369/400 (355, 14, 31 lost), 0.04550 before pose refinement stepped with ``lie.so3_exp`` instead of
+    ``cv2.Rodrigues`` (the same formula, other rounding: the benchmark rows are the same files, but
+    this run moves by two frames and 9 % of ATE: its figures are that sensitive to rounding);
     366/400 (352, 14, 34 lost, 10 implausible steps), 0.04530 before issue 15's per-point Schur sums
     (the map of frames 0-599 moved by 1e-14 m, rounding only, and the counts with it);
     386/400, 0.047 when issue 7 closed; 350/400, 0.0512 after later map changes (the relocalizer's
@@ -92,8 +95,8 @@ def test_7scenes_localization(sevenscenes_localization):
     implausible-step check moves every one of these counts."""
     s = sevenscenes_localization
     assert s["frames"] == 400
-    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (369, 355, 14, 31), s
+    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (367, 353, 14, 33), s
     assert (s["implausible_steps"], s["track_failures"]) == (9, 13), s
     assert s["localized"] >= 360 and s["ate_rmse"] < 0.05
-    assert _band(s["ate_rmse"], 0.04550), s["ate_rmse"]
+    assert _band(s["ate_rmse"], 0.04961), s["ate_rmse"]
     assert s["matched_poses"] == s["localized"]

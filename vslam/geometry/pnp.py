@@ -20,7 +20,7 @@ import numpy as np
 
 from vslam.errors import GeometryError
 from vslam.geometry import pnp_kernels
-from vslam.geometry.lie import make_T
+from vslam.geometry.lie import make_T, so3_exp
 
 log = logging.getLogger(__name__)
 
@@ -176,11 +176,6 @@ def reprojection_errors(
 # ----------------------------------------------------------------------------- tracking
 CHI2_2DOF = 5.991  # 95% chi-square quantiles (ORB-SLAM PoseOptimization thresholds)
 CHI2_3DOF = 7.815
-
-
-def _so3_exp_rodrigues(w: np.ndarray) -> np.ndarray:
-    R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
-    return R
 
 
 def pnp_ransac(
@@ -352,7 +347,7 @@ def refine_pose(
             except np.linalg.LinAlgError:
                 break
             dT = np.eye(4)
-            dT[:3, :3] = _so3_exp_rodrigues(dx[3:])
+            dT[:3, :3] = so3_exp(dx[3:])
             dT[:3, 3] = dx[:3]
             T = dT @ T
             if np.linalg.norm(dx) < 1e-5:
