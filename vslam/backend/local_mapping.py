@@ -95,7 +95,9 @@ def solve_job(config: LocalBAConfig, job: _Job) -> BAResult | str:
 
 def warm_worker() -> None:
     """Parallel mode, process worker: load the compiled kernels in the child before the first job."""
-    from vslam.backend import schur_kernels  # noqa: F401
+    from vslam.backend import schur_kernels
+
+    schur_kernels.warm()
 
 
 class LocalMapper:

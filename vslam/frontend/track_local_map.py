@@ -19,10 +19,8 @@ from vslam.frontend.motion_3d2d import pose_3d2d
 from vslam.frontend.motion_3d3d import pose_3d3d
 from vslam.frontend.observation import Observation
 from vslam.geometry.camera import PinholeCamera, stereo_bf
-from vslam.geometry import pnp_kernels
 from vslam.geometry.lie import inv_se3
 from vslam.map.map import Map
-from vslam.map import matching_kernels
 from vslam.map.matching import brute_force_match, guided_match, project_local_points
 from vslam.map.mappoint import unique_ids
 
@@ -41,8 +39,6 @@ class LocalMapTracker:
         self.timers = timers
         self.bf = stereo_bf(camera, sensor)
         self.rng = np.random.default_rng(0)
-        matching_kernels.warm()  # the compiled kernels load now, not on the first frame
-        pnp_kernels.warm()
 
     def track(self, obs: Observation, T_world_pred: np.ndarray | None, local_ids: np.ndarray,
               prev: Observation | None, relocalize: bool) -> tuple[np.ndarray | None, int]:

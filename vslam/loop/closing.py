@@ -58,10 +58,8 @@ from typing import Callable
 
 import numpy as np
 
-from vslam.features import match_kernels
 from vslam.geometry.camera import PinholeCamera, stereo_bf
 from vslam.geometry.lie import inv_se3
-from vslam.loop import vocabulary_kernels
 from vslam.loop.config import LoopConfig
 from vslam.loop.detector import LoopDetector
 from vslam.loop.essential_graph import EssentialGraph, build_essential_graph, write_back_corrections
@@ -147,8 +145,6 @@ class LoopCloser:
         self.global_ba = global_ba
         self.pose_graph_config = pose_graph or PoseGraphConfig()
         self.vocabulary = vocabulary or load_default_vocabulary()
-        vocabulary_kernels.warm()  # the compiled BoW descent and descriptor matching load now, not mid-run
-        match_kernels.warm()
         self.database = KeyframeDatabase(self.vocabulary.n_words, self.config.database)
         self.detector = LoopDetector(self.database, self.config.detector, neighbours=self._neighbours)
         self.bf = stereo_bf(camera, sensor)
