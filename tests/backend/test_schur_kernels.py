@@ -12,13 +12,18 @@ from vslam.backend.synthetic import make_ba_problem
 from vslam.geometry.lie import so3_exp
 
 
+def _camera_sorted(obs):
+    """The observations in camera order (stable), as the solver takes them."""
+    order = np.argsort(obs.cam, kind="stable")
+    return schur_lm.Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order],
+                                 obs.stereo[order], obs.info[order], obs.disparity[order], None)
+
+
 @pytest.mark.parametrize("sensor", ["mono", "stereo", "rgbd"])
 def test_linearized_blocks_equal_numerical_jacobians(sensor):
     problem, _ = make_ba_problem(n_keyframes=4, n_points=30, sensor=sensor, seed=3)
     obs = _observations(problem, LocalBAConfig())
-    order = np.argsort(obs.cam, kind="stable")
-    obs = schur_lm.Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order],
-                                obs.stereo[order], obs.info[order], obs.disparity[order], None)
+    obs = _camera_sorted(obs)
     intr = schur_lm.Intrinsics(problem.camera.fx, problem.camera.fy, problem.camera.cx, problem.camera.cy)
     cam_var = _cam_var(problem, problem.fixed_kf_ids)
     R, t = _split_poses(problem.T_world_cam)
@@ -89,9 +94,7 @@ def test_pointwise_schur_complement_equals_the_dense_reference(sensor):
     assert _cam_var(problem, problem.fixed_kf_ids)[obs.cam.max()] >= 0  # ... and a variable one
     obs = schur_lm.Observations(*(np.concatenate([a, a[dup]]) for a in (
         obs.cam, obs.pt, obs.meas, obs.baseline, obs.stereo, obs.info, obs.disparity)), None)
-    order = np.argsort(obs.cam, kind="stable")
-    obs = schur_lm.Observations(obs.cam[order], obs.pt[order], obs.meas[order], obs.baseline[order],
-                                obs.stereo[order], obs.info[order], obs.disparity[order], None)
+    obs = _camera_sorted(obs)
     intr = schur_lm.Intrinsics(problem.camera.fx, problem.camera.fy, problem.camera.cx, problem.camera.cy)
     cam_var = _cam_var(problem, problem.fixed_kf_ids)
     R, t = _split_poses(problem.T_world_cam)
