@@ -39,16 +39,18 @@ def _fma32(typingctx, a, b, c):
 
 
 @njit(cache=True, nogil=True)
-def _load(left, right, u, v, xs, w, pl, st, gr):  # pragma: no cover - compiled
+def _load(left, right, u, v, xs, w, pl, st, gr, ext):  # pragma: no cover - compiled
     """The zero-mean left window ``pl (W, W)`` centred on ``(u, v)``, the right strip ``st (W, S)``
-    from right column ``xs`` and its central difference ``gr`` (all float32, as the NumPy tables)."""
+    from right column ``xs`` and its central difference ``gr`` (all float32, as the NumPy tables);
+    ``ext (S + 2,)`` is scratch."""
     W = pl.shape[0]
     S = st.shape[1]
     f32 = np.float32
     tot = 0.0  # exact for 8-bit images (integers), so equal to NumPy's float32 pairwise sum
     for r in range(W):
+        row = left[v - w + r, u - w:u + w + 1]
         for c in range(W):
-            p = f32(left[v - w + r, u - w + c])
+            p = f32(row[c])
             pl[r, c] = p
             tot += float(p)
     mean = f32(tot) / f32(W * W)
@@ -56,10 +58,12 @@ def _load(left, right, u, v, xs, w, pl, st, gr):  # pragma: no cover - compiled
         for c in range(W):
             pl[r, c] = pl[r, c] - mean
     for r in range(W):
-        y = v - w + r
+        row = right[v - w + r, xs - 1:xs + S + 1]
+        for s in range(S + 2):
+            ext[s] = f32(row[s])
         for s in range(S):
-            st[r, s] = f32(right[y, xs + s])
-            gr[r, s] = f32(0.5) * (f32(right[y, xs + s + 1]) - f32(right[y, xs + s - 1]))
+            st[r, s] = ext[s + 1]
+            gr[r, s] = f32(0.5) * (ext[s + 2] - ext[s])
 
 
 @njit(cache=True, nogil=True)
@@ -72,21 +76,44 @@ def _window_sums(pl, st, gr, col, crs, win, Ct):  # pragma: no cover - compiled
     W, S = st.shape
     nS = S - W + 1
     f32 = np.float32
-    # per-column sums over the window rows (the shifted products padded with 0); rows outer so
-    # the columns' independent accumulations vectorize
-    col[:, :] = f32(0.0)
-    for r in range(W):
-        for s in range(S):
-            i = st[r, s]
-            g = gr[r, s]
-            col[0, s] = col[0, s] + i
-            col[1, s] = col[1, s] + g
-            col[2, s] = _fma32(i, g, col[2, s])
-            col[3, s] = _fma32(g, g, col[3, s])
-        for s in range(S - 1):
-            col[4, s] = _fma32(st[r, s], gr[r, s + 1], col[4, s])
-            col[5, s] = _fma32(st[r, s + 1], gr[r, s], col[5, s])
-            col[6, s] = _fma32(gr[r, s], gr[r, s + 1], col[6, s])
+    # per-column sums over the window rows (the shifted products padded with 0), seven running
+    # sums side by side per column
+    for s in range(S):
+        a0 = f32(0.0)
+        a1 = f32(0.0)
+        a2 = f32(0.0)
+        a3 = f32(0.0)
+        a4 = f32(0.0)
+        a5 = f32(0.0)
+        a6 = f32(0.0)
+        if s < S - 1:
+            for r in range(W):
+                i = st[r, s]
+                g = gr[r, s]
+                i1 = st[r, s + 1]
+                g1 = gr[r, s + 1]
+                a0 = a0 + i
+                a1 = a1 + g
+                a2 = _fma32(i, g, a2)
+                a3 = _fma32(g, g, a3)
+                a4 = _fma32(i, g1, a4)
+                a5 = _fma32(i1, g, a5)
+                a6 = _fma32(g, g1, a6)
+        else:
+            for r in range(W):
+                i = st[r, s]
+                g = gr[r, s]
+                a0 = a0 + i
+                a1 = a1 + g
+                a2 = _fma32(i, g, a2)
+                a3 = _fma32(g, g, a3)
+        col[0, s] = a0
+        col[1, s] = a1
+        col[2, s] = a2
+        col[3, s] = a3
+        col[4, s] = a4
+        col[5, s] = a5
+        col[6, s] = a6
     # running window sums (float64; exact for 8-bit images)
     for t in range(7):
         acc = 0.0
@@ -163,8 +190,9 @@ def refine_rows(left, right, ul, vl, x0, d0, max_change, w, S, iters, tol, disp,
     crs = np.empty((W, nS), np.float32)
     win = np.empty((7, nS), np.float64)
     Ct = np.empty(nS, np.float64)
+    ext = np.empty(S + 2, np.float32)
     for k in range(ul.shape[0]):
-        _load(left, right, ul[k], vl[k], x0[k], w, pl, st, gr)
+        _load(left, right, ul[k], vl[k], x0[k], w, pl, st, gr, ext)
         _window_sums(pl, st, gr, col, crs, win, Ct)
         d, good, step = _gauss_newton(win, Ct, float(ul[k] - w - x0[k]), d0[k], iters, N)
         good = good and abs(step) < tol and abs(d - d0[k]) <= max_change[k]
