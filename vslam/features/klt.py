@@ -48,7 +48,6 @@ def track_klt(prev_gray: np.ndarray, curr_gray: np.ndarray, prev_uv: np.ndarray,
     n = len(p0)
     if n == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    win = (cfg.win_size, cfg.win_size)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.max_iter, cfg.eps)
     flags = 0
     p1 = None
@@ -57,24 +56,39 @@ def track_klt(prev_gray: np.ndarray, curr_gray: np.ndarray, prev_uv: np.ndarray,
         if len(p1) != n:
             raise VslamError(f"init_uv has {len(p1)} points but prev_uv has {n}")
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, curr_gray, p0, p1, winSize=win, maxLevel=cfg.max_level,
-                                         criteria=crit, flags=flags, minEigThreshold=cfg.min_eig_threshold)
-    ok = st.reshape(-1).astype(bool)
+    p1, ok = _pyr_lk(prev_gray, curr_gray, p0, p1, cfg, crit, flags)
     if cfg.fb_threshold > 0 and ok.any():
         idx = np.flatnonzero(ok)  # track back only what the forward pass found
         p0b = p0[idx].copy()  # start the backward pass at the origin (the inverse flow's answer)
-        p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(curr_gray, prev_gray, np.ascontiguousarray(p1[idx]), p0b,
-                                                winSize=win, maxLevel=cfg.max_level, criteria=crit,
-                                                flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                                                minEigThreshold=cfg.min_eig_threshold)
+        p0b, ok_b = _pyr_lk(curr_gray, prev_gray, np.ascontiguousarray(p1[idx]), p0b, cfg, crit,
+                            cv2.OPTFLOW_USE_INITIAL_FLOW)
         fb = np.linalg.norm((p0b - p0[idx]).reshape(-1, 2), axis=1)
-        ok[idx] = st_b.reshape(-1).astype(bool) & (fb <= cfg.fb_threshold)
+        ok[idx] = ok_b & (fb <= cfg.fb_threshold)
     uv = p1.reshape(-1, 2)
     h, w = curr_gray.shape
     b = cfg.border
     ok &= np.isfinite(uv).all(1)
     ok &= (uv[:, 0] >= b) & (uv[:, 1] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] <= h - 1 - b)
     return uv.astype(np.float32), ok
+
+
+def _pyr_lk(prev_gray: np.ndarray, curr_gray: np.ndarray, p0: np.ndarray, p1: np.ndarray | None, cfg: KLTConfig,
+            crit: tuple, flags: int) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.calcOpticalFlowPyrLK`` of ``p0`` (from ``p1`` with ``OPTFLOW_USE_INITIAL_FLOW``) without
+    its error output: ``(p1 (N, 1, 2) float32, status (N,) bool)``, the same as OpenCV's.
+
+    ``OPTFLOW_LK_GET_MIN_EIGENVALS`` makes OpenCV skip the pass over every window at level 0 that
+    computes the (unused) patch difference (0.4-0.6 ms of 7-8 ms for 2000 points, 11 x 11, 4
+    levels). That pass also refused the points whose window's corner ``floor(p1 - (win - 1) / 2)``
+    lies outside ``[-win, size)``; that test is repeated here, so the status is OpenCV's."""
+    win = cfg.win_size
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, curr_gray, p0, p1, winSize=(win, win), maxLevel=cfg.max_level,
+                                         criteria=crit, flags=flags | cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
+                                         minEigThreshold=cfg.min_eig_threshold)
+    corner = np.floor(p1.reshape(-1, 2) - np.float32((win - 1) * 0.5))
+    h, w = curr_gray.shape
+    inside = (corner[:, 0] >= -win) & (corner[:, 0] < w) & (corner[:, 1] >= -win) & (corner[:, 1] < h)
+    return p1, st.reshape(-1).astype(bool) & inside
 
 
 def occupancy_mask(shape: tuple[int, int], uv: np.ndarray, min_distance: float) -> np.ndarray:
