@@ -49,6 +49,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.map.matching_kernels",
     "vslam.map.fusion_kernels",
     "vslam.map.map_kernels",
+    "vslam.map.database_kernels",
     "vslam.geometry.pnp_kernels",
     "vslam.features.orb_kernels",
     "vslam.datasets.depth_kernels",

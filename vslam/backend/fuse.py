@@ -93,4 +93,4 @@ class NeighbourFusion:
             vis[m], k, z[m], uv[m], kf.uv_undist, sigma2, np.ascontiguousarray(u0, np.float64),
             np.asarray(u_right, np.float64), float(bf), use_disp, float(self.config.local.chi2_mono),
             float(self.config.local.chi2_stereo), kf.point_ids, store.alive, store.n_obs, remap)
-        return self.map.merge_points(loser, winner, remap)
+        return self.map.merge_points(loser, winner, remap) if len(loser) else 0
