@@ -45,7 +45,11 @@ log = logging.getLogger(__name__)
 KERNEL_MODULES: tuple[str, ...] = (
     "vslam.backend.schur_kernels",
     "vslam.backend.local_problem_kernels",
+    "vslam.backend.fuse_kernels",
     "vslam.map.matching_kernels",
+    "vslam.map.fusion_kernels",
+    "vslam.map.map_kernels",
+    "vslam.map.database_kernels",
     "vslam.geometry.pnp_kernels",
     "vslam.features.orb_kernels",
     "vslam.datasets.depth_kernels",

@@ -117,3 +117,27 @@ def test_project_rest_equals_numpy(monkeypatch, check_distance):
         got, want = _both(monkeypatch, project_local_points, store, sel, T, CAM, margin, 0.5, check_distance)
         _assert_same(got, want)
         assert 30 < len(got[0]) < 1900
+
+
+def test_guided_match_asks_a_lazy_tree_only_for_distance_ties():
+    """``kp_tree`` may be a callable (``KeyFrame.keypoint_tree``): called only when the grid search
+    leaves rows to the KD-tree; the matches are the same as with the tree given."""
+    rng = np.random.default_rng(4)
+    kp = rng.uniform(0, 200, (300, 2))
+    desc = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    proj = kp[:150] + rng.normal(scale=1.0, size=(150, 2))
+    calls = []
+
+    def lazy():
+        calls.append(1)
+        return cKDTree(kp)
+
+    got = guided_match(proj, desc[:150], kp, desc, 4.0, True, 64.0, 0.9, kp_tree=lazy)
+    want = guided_match(proj, desc[:150], kp, desc, 4.0, True, 64.0, 0.9, kp_tree=cKDTree(kp))
+    _assert_same(got, want)
+    assert calls == [] and len(got[0]) > 100  # random float pixels: no ties, no tree
+    tie = np.round(kp)  # integer pixels: equal distances, the KD-tree decides those rows
+    got = guided_match(np.round(proj), desc[:150], tie, desc, 4.0, True, 64.0, 0.9, kp_tree=lambda: calls.append(1) or cKDTree(tie))
+    want = guided_match(np.round(proj), desc[:150], tie, desc, 4.0, True, 64.0, 0.9, kp_tree=cKDTree(tie))
+    _assert_same(got, want)
+    assert len(calls) == 1

@@ -6,6 +6,7 @@ from typing import Callable
 
 import numpy as np
 
+from vslam.backend import fuse_kernels
 from vslam.backend.config import BackendConfig
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.fusion import apply_remap, new_remap
@@ -61,12 +62,12 @@ class NeighbourFusion:
         from vslam.map.matching import guided_match, project_local_points
 
         store = self.map.points
-        pts = pts[store.alive[pts]]
-        if len(pts) == 0 or len(kf.uv_undist) == 0:
+        if len(kf.uv_undist) == 0:
             return 0
-        observed = np.zeros(len(store) + 1, dtype=bool)  # kf's points ([-1]: a keypoint without one)
-        observed[kf.point_ids] = True
-        pts = pts[~observed[pts]]  # as unique_ids(n, pts, exclude=...) for sorted unique pts, no id-range scan
+        # the alive points of pts that kf does not observe yet (sorted unique pts: no id-range scan)
+        pts = fuse_kernels.candidate_points(pts, store.alive, kf.point_ids, len(store))
+        if len(pts) == 0:
+            return 0
         vis, uv, z = project_local_points(store, pts, kf.T_cam_world, self.camera)
         if len(vis) == 0:
             return 0
@@ -74,32 +75,22 @@ class NeighbourFusion:
         m, k, _ = guided_match(uv, store.descriptor[vis], kf.uv_undist, kf.descriptors, self.config.fusion.radius_px,
                                binary, self.config.fusion.max_descriptor_distance if binary else None,
                                ratio=self.config.fusion.ratio,
-                               kp_tree=kf.keypoint_tree())
+                               kp_tree=kf.keypoint_tree)  # built only if the grid search needs it
         if len(m) == 0:
             return 0
-        p, kp, zp = vis[m], k, z[m]
-        sigma2 = np.power(self.scale_factor, 2.0 * kf.octave[kp].astype(float))
-        chi2 = np.sum((uv[m] - kf.uv_undist[kp]) ** 2, axis=1) / sigma2
-        thr = np.full(len(p), self.config.local.chi2_mono)
-        if self.sensor != "mono" and kf.u_right is not None:
+        sigma2 = np.power(self.scale_factor, 2.0 * kf.octave[k].astype(float))
+        use_disp = self.sensor != "mono" and kf.u_right is not None
+        bf, u0, u_right = 0.0, sigma2, sigma2  # (unused without a disparity)
+        if use_disp:
             if self.sensor == "stereo":
-                bf, u0 = self.camera.fx * float(self.camera.baseline), kf.uv[kp, 0]
+                bf, u0 = self.camera.fx * float(self.camera.baseline), kf.uv[:, 0]
             else:
-                bf, u0 = self.camera.fx * self.config.local.rgbd_virtual_baseline, kf.uv_undist[kp, 0]
-            disp = u0 - kf.u_right[kp]
-            has = np.isfinite(disp)
-            chi2 = chi2 + np.where(has, (np.where(has, disp, 0.0) - bf / zp) ** 2, 0.0) / sigma2
-            thr = np.where(has, self.config.local.chi2_stereo, thr)
-        ok = chi2 <= thr
-        p, kp = p[ok], kp[ok]
-        cur = kf.point_ids[kp]
-        # keypoint free (or its point is dead): a new observation
-        free = (cur < 0) | ~store.alive[np.where(cur >= 0, cur, 0)]
-        kf.point_ids[kp[free]] = p[free]
-        np.add.at(store.n_obs, p[free], 1)
-        # keypoint with another live point: the two are the same point; keep the better observed one
-        dup = ~free & (cur != p)
-        a, b = p[dup], cur[dup]
-        a, b = remap[a], remap[b]  # already fused earlier in this pass
-        keep_a = store.n_obs[a] >= store.n_obs[b]
-        return self.map.merge_points(np.where(keep_a, b, a), np.where(keep_a, a, b), remap)
+                bf, u0 = self.camera.fx * self.config.local.rgbd_virtual_baseline, kf.uv_undist[:, 0]
+            u_right = kf.u_right
+        # chi-square test, new observations, and the (loser, winner) pairs of two points that are one
+        # (the better observed survives; ``remap``: fused earlier in this pass)
+        loser, winner = fuse_kernels.fuse_matches(
+            vis[m], k, z[m], uv[m], kf.uv_undist, sigma2, np.ascontiguousarray(u0, np.float64),
+            np.asarray(u_right, np.float64), float(bf), use_disp, float(self.config.local.chi2_mono),
+            float(self.config.local.chi2_stereo), kf.point_ids, store.alive, store.n_obs, remap)
+        return self.map.merge_points(loser, winner, remap) if len(loser) else 0

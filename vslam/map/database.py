@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vslam.errors import MapFormatError, VslamError
+from vslam.map import database_kernels
 from vslam.map.config import DatabaseConfig
 
 log = logging.getLogger(__name__)
@@ -171,16 +172,17 @@ class KeyframeDatabase:
         words, values = bow.words, bow.values
         out_ids, out_scores, out_common = [], [], []
         if self._row_ids.size:
-            # inverted index: the columns of the query's words only (scipy slices them in C)
-            sub = self._csc[:, words]
-            mins = np.minimum(sub.data, np.repeat(values, np.diff(sub.indptr)))
+            # inverted index: the columns of the query's words only, summed in the compiled kernel
+            # (the terms and their order of ``bincount`` over ``csc[:, words]``)
+            csc = self._csc
             n_rows = self._row_ids.size
-            scores = np.bincount(sub.indices, weights=mins, minlength=n_rows)
+            scores, common = database_kernels.column_scores(
+                csc.indptr, csc.indices, csc.data, np.asarray(words), np.asarray(values, np.float64), n_rows)
             hit = (scores > 0) & self._row_alive
             out_ids.append(self._row_ids[hit])
             out_scores.append(scores[hit])
             if count_common:
-                out_common.append(np.bincount(sub.indices, minlength=n_rows)[hit])
+                out_common.append(common[hit])
         if self._pending:
             rows, p_words, p_values = self._pending_arrays()
             dense = self._query_dense

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
+from vslam.map import fusion_kernels
 from vslam.map.keyframe import KeyFrame
 
 if TYPE_CHECKING:
@@ -31,11 +32,18 @@ def apply_remap(keyframes: Iterable[KeyFrame], remap: np.ndarray, chain_rounds: 
     """Follow merge chains (``a -> b -> c``) to the final survivor, ``chain_rounds`` steps, then
     rewrite each keyframe's ``point_ids`` through ``remap`` (``-1`` stays ``-1``: ``remap`` comes from
     :func:`new_remap`, whose last entry is ``-1`` and stays so, as merges never name ``-1``)."""
-    moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
-    for _ in range(chain_rounds):
-        remap[moved] = remap[remap[moved]]
+    if remap.dtype != np.int64:  # (new_remap's dtype; others by NumPy)
+        moved = np.flatnonzero(remap[:-1] != np.arange(len(remap) - 1))
+        for _ in range(chain_rounds):
+            remap[moved] = remap[remap[moved]]
+        for k in keyframes:
+            k.point_ids = remap[k.point_ids]  # -1 (no point, KeyFrame.point_ids) -> remap[-1] == -1
+        return
+    fusion_kernels.follow_chains(remap, chain_rounds)
     for k in keyframes:
-        k.point_ids = remap[k.point_ids]  # -1 (no point, KeyFrame.point_ids) -> remap[-1] == -1
+        pid = k.point_ids
+        # -1 (no point, KeyFrame.point_ids) -> remap[-1] == -1
+        k.point_ids = fusion_kernels.remap_ids(remap, pid) if pid.dtype == np.int64 else remap[pid]
 
 
 def assign_observations(slam_map: "Map", kf: KeyFrame, kp: np.ndarray, pids: np.ndarray, remap: np.ndarray) -> int:

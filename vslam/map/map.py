@@ -9,6 +9,7 @@ import logging
 
 import numpy as np
 
+from vslam.map import map_kernels
 from vslam.map.keyframe import KeyFrame
 from vslam.map.mappoint import MapPoint, MapPointStore, unique_ids
 
@@ -46,7 +47,8 @@ class Map:
 
     def update_covisibility(self, kf_id: int, min_weight: int = 1) -> None:
         """Recompute ``kf_id``'s links: per keyframe, the count of its ``point_ids`` this keyframe
-        observes (one gather each; ``-1``, no point, hits the flag array's last entry, ``False``)."""
+        observes (:func:`vslam.map.map_kernels.count_flagged` each; ``-1``, no point, hits the flag
+        array's last entry, ``False``)."""
         kf = self.keyframes[kf_id]
         mine = np.zeros(len(self.points) + 1, dtype=bool)  # the points this keyframe observes; [-1]: none
         mine[kf.observed_ids()] = True
@@ -54,7 +56,9 @@ class Map:
         others = [o for o in self.keyframes.values() if o.id != kf_id and o.segment == kf.segment and not o.bad]
         if not others or not mine.any():
             return
-        weights = np.array([np.count_nonzero(mine[o.point_ids]) for o in others], np.int64)
+        count = map_kernels.count_flagged
+        weights = np.array([count(mine, o.point_ids) if o.point_ids.dtype == np.int64
+                            else np.count_nonzero(mine[o.point_ids]) for o in others], np.int64)
         for j in np.flatnonzero(weights >= min_weight):
             w = int(weights[j])
             links[others[j].id] = w

@@ -7,6 +7,8 @@ vectorized NumPy pass over the local points.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -90,14 +92,16 @@ def guided_match(
     max_distance: float | None = 64.0,
     ratio: float = 0.9,
     k: int = 8,
-    kp_tree: cKDTree | None = None,
+    kp_tree: cKDTree | Callable[[], cKDTree] | None = None,
     kp_free: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match projected map points to keypoints within ``radius`` pixels by descriptor distance.
 
     The ``k`` nearest keypoints (in pixels) of each projection are candidates; the best descriptor
     distance must pass ``max_distance`` and the ratio test against the second best; a keypoint
-    claimed by several map points keeps the closest one.
+    claimed by several map points keeps the closest one. ``kp_tree``: a ``cKDTree`` of ``kp_uv``, or a
+    callable giving one (e.g. :meth:`vslam.map.keyframe.KeyFrame.keypoint_tree`), asked only when
+    the tree is needed (the compiled grid search needs it for distance ties only); None: built here.
 
     Returns:
         ``(map_idx, kp_idx, distance)`` index arrays into ``proj_uv`` and ``kp_uv``.
@@ -113,7 +117,7 @@ def guided_match(
             idx, len(kp_uv), free, _words(map_desc), _words(kp_desc),
             np.float32(np.inf if max_distance is None else max_distance), max_distance is not None,
             np.float32(ratio), ratio < 1.0)
-    tree = kp_tree if kp_tree is not None else cKDTree(kp_uv)
+    tree = _tree(kp_tree, kp_uv)
     _, idx = tree.query(proj_uv, k=k, distance_upper_bound=radius)
     idx = idx.reshape(len(proj_uv), k)
     valid = idx < len(kp_uv)
@@ -151,7 +155,15 @@ def _compiled_projection(points: MapPointStore, Xc: np.ndarray) -> bool:
                                                                points.min_distance, points.max_distance))
 
 
-def _knn(proj_uv: np.ndarray, kp_uv: np.ndarray, radius: float, k: int, kp_tree: cKDTree | None) -> np.ndarray:
+def _tree(kp_tree: cKDTree | Callable[[], cKDTree] | None, kp_uv: np.ndarray) -> cKDTree:
+    """The keypoint tree of :func:`guided_match`: given, given lazily (a callable), or built."""
+    if kp_tree is None:
+        return cKDTree(kp_uv)
+    return kp_tree() if callable(kp_tree) else kp_tree
+
+
+def _knn(proj_uv: np.ndarray, kp_uv: np.ndarray, radius: float, k: int,
+         kp_tree: cKDTree | Callable[[], cKDTree] | None) -> np.ndarray:
     """``cKDTree(kp_uv).query(proj_uv, k, distance_upper_bound=radius)[1]`` as a ``(P, k)`` table, by
     the grid kernel; rows it cannot decide (distance ties) by the KD-tree."""
     proj = np.ascontiguousarray(proj_uv, dtype=np.float64)
@@ -159,7 +171,7 @@ def _knn(proj_uv: np.ndarray, kp_uv: np.ndarray, radius: float, k: int, kp_tree:
     idx, fallback, ok = matching_kernels.knn_grid(proj, kp, float(radius), k)
     rows = np.flatnonzero(fallback) if ok else np.arange(len(proj))
     if len(rows):
-        tree = kp_tree if kp_tree is not None else cKDTree(kp)
+        tree = _tree(kp_tree, kp)
         idx[rows] = tree.query(proj[rows], k=k, distance_upper_bound=radius)[1].reshape(len(rows), k)
     return idx
 
