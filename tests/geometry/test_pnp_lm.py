@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vslam.geometry import pnp, pnp_kernels
-from vslam.geometry.lie import se3_exp, so3_exp
+from vslam.geometry.lie import project_to_so3, se3_exp, so3_exp
 
 K = np.array([[520.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
 CRIT = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 1e-10)
@@ -91,16 +91,30 @@ def test_refine_lm_matches_cv2_and_keeps_the_distortion_path():
     assert 330 < m_got.sum() < 345
 
 
+def test_refine_lm_starts_from_the_nearest_rotation():
+    """A pose whose rotation is off SO(3) (round-off grown through the tracker's products) comes
+    back a rotation, as OpenCV's LM (Rodrigues' SVD) returned it."""
+    rng = np.random.default_rng(4)
+    T, _, X, uv = _problem(rng, 300, 1.0)
+    T0 = se3_exp(np.r_[rng.normal(0, 0.005, 3), rng.normal(0, 0.001, 3)]) @ T
+    T0[:3, :3] += rng.normal(0, 1e-4, (3, 3))
+    got, m_got = pnp._refine_lm(T0, K, X, uv, None, 3.0, rounds=1)
+    want, m_want = pnp._refine_lm(T0, K, X, uv, np.zeros(5), 3.0, rounds=1)
+    np.testing.assert_allclose(got[:3, :3].T @ got[:3, :3], np.eye(3), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(m_got, m_want)
+
+
 def test_lm_stops_and_guards():
     rng = np.random.default_rng(5)
     T, T0, X, uv = _problem(rng, 40, 0.0)
-    np.testing.assert_array_equal(pnp_kernels.lm_reprojection(T0, X, uv, K, 0, 1e-10), T0)  # no step
+    np.testing.assert_allclose(pnp_kernels.lm_reprojection(T0, X, uv, K, 0, 1e-10), T0, rtol=0, atol=1e-15)  # no step
     one = pnp_kernels.lm_reprojection(T0, X, uv, K, 1, 1e-10)
     assert 0 < _cost(one, X, uv) < 1e-3 * _cost(T0, X, uv)  # one Gauss-Newton-like step from 1 cm, 0.6 deg
     # a huge tolerance: one step only, then stop
     np.testing.assert_array_equal(pnp_kernels.lm_reprojection(T0, X, uv, K, 20, 1e3), one)
     # no points: singular normal equations (zero pivot), no step
-    np.testing.assert_array_equal(pnp_kernels.lm_reprojection(T0, X[:0], uv[:0], K, 20, 1e-10), T0)
+    np.testing.assert_allclose(pnp_kernels.lm_reprojection(T0, X[:0], uv[:0], K, 20, 1e-10), T0, rtol=0, atol=1e-15)
     # a point on the camera plane (z = 0): the error is NaN/inf from the start, no step is kept
     Xz = np.r_[X, [[0.0, 0.0, 0.0]]]
     Tz = np.eye(4)
@@ -130,6 +144,17 @@ def test_normal_equations_are_the_jacobian_of_the_left_update():
     np.testing.assert_allclose(g, J.T @ r, rtol=1e-5, atol=1e-6 * np.abs(g).max())
     np.testing.assert_allclose(H, J.T @ J, rtol=1e-5, atol=1e-7 * np.abs(H).max())
     np.testing.assert_array_equal(H, H.T)
+
+
+def test_nearest_rotation_kernel_equals_lie():
+    rng = np.random.default_rng(12)
+    for scale in (0.0, 1e-12, 1e-4, 0.3):
+        M = so3_exp(rng.normal(0, 1, 3)) + rng.normal(0, scale, (3, 3))
+        for MM in (M, -M):  # -M: det < 0, the nearest rotation flips the last singular direction
+            R = np.empty((3, 3))
+            pnp_kernels.nearest_rotation(MM, R)
+            np.testing.assert_allclose(R, project_to_so3(MM), rtol=0, atol=1e-14)
+            assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-14)
 
 
 @pytest.mark.parametrize("angle", [0.0, 1e-10, 1e-8 * 0.99, 1e-8 * 1.01, 1e-3, 0.5, 3.0])

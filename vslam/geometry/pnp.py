@@ -76,7 +76,8 @@ def _refine_lm(T, K, X, x, dist, threshold_px, rounds: int = 2):
     plain squared reprojection error with the left update ``T <- [so3_exp(phi), rho; 0, 1] T`` (as
     :func:`refine_pose`) and ``cv2.solvePnPRefineLM``'s criteria (at most ``LM_MAX_ITERS`` steps,
     stop at a step below ``LM_EPS``); it reaches the same minimum as ``cv2.solvePnPRefineLM``
-    (tests/geometry/test_pnp_lm.py) in about 5 steps instead of 20. With distortion: OpenCV's.
+    (tests/geometry/test_pnp_lm.py) in about 5 steps instead of 20; as OpenCV's, it starts from the
+    nearest rotation to ``T``'s. With distortion: OpenCV's.
     """
     import cv2
 
@@ -86,7 +87,7 @@ def _refine_lm(T, K, X, x, dist, threshold_px, rounds: int = 2):
         if mask.sum() < 4:
             break
         if own:
-            T = pnp_kernels.lm_reprojection(np.asarray(T, float), X[mask], x[mask], K, LM_MAX_ITERS, LM_EPS)
+            T = pnp_kernels.lm_reprojection(T, X[mask], x[mask], K, LM_MAX_ITERS, LM_EPS)
         else:
             rvec = cv2.Rodrigues(T[:3, :3])[0]
             tvec = T[:3, 3].reshape(3, 1).copy()

@@ -236,14 +236,35 @@ def _solve_spd6(A, b, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def nearest_rotation(M, R):  # pragma: no cover - compiled
+    """:func:`vslam.geometry.lie.project_to_so3` of ``M (3, 3)`` into ``R``: ``U diag(1, 1, det(U V^T)) V^T``
+    from the SVD ``M = U S V^T`` (the nearest rotation in the Frobenius norm)."""
+    U, _, Vt = np.linalg.svd(np.ascontiguousarray(M))
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + U[i, 2] * Vt[2, j]
+    det = (R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1]) - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+           + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]))
+    if det < 0:
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] - U[i, 2] * Vt[2, j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def lm_reprojection(T0, X, x, K, max_iters, eps):  # pragma: no cover - compiled
     """Levenberg-Marquardt on SE(3) of the squared reprojection error from ``T0 (4, 4)``; returns
-    ``T (4, 4)``. Each step solves ``(H + lambda diag(H)) xi = -g`` (Marquardt 1963; ``H, g`` from
+    ``T (4, 4)``. It starts from :func:`nearest_rotation` of ``T0``'s rotation, as OpenCV's LM starts
+    from ``cv2.Rodrigues`` of it (an SVD too): the tracker's poses are products of earlier ones, whose
+    round-off off SO(3) would otherwise grow from frame to frame (the updates keep it). Each step solves ``(H + lambda diag(H)) xi = -g`` (Marquardt 1963; ``H, g`` from
     :func:`reproj_normal_equations`) and tries ``T <- [so3_exp(phi), rho; 0, 1] T``; a step that
     lowers the error is kept and ``lambda / 10``, otherwise ``lambda * 10``. Stops after
     ``max_iters`` steps, at a step with ``|xi|_inf < eps``, or when the damped system is singular.
     """
     T = T0.copy()
+    dR = np.empty((3, 3))
+    nearest_rotation(T0[:3, :3], dR)
+    T[:3, :3] = dR
     Tn = np.empty((4, 4))
     H = np.empty((6, 6))
     g = np.empty(6)
@@ -252,7 +273,6 @@ def lm_reprojection(T0, X, x, K, max_iters, eps):  # pragma: no cover - compiled
     A = np.empty((6, 6))
     b = np.empty(6)
     xi = np.empty(6)
-    dR = np.empty((3, 3))
     cost = reproj_normal_equations(T, X, x, K, H, g)
     lam = 1e-3
     for _ in range(max_iters):
@@ -301,4 +321,5 @@ def warm() -> None:
     reproj_inliers(np.ascontiguousarray(Xc.T), np.zeros((1, 2)), np.eye(3), 2.0)
     R = np.empty((3, 3))
     so3_exp(0.1, 0.2, 0.3, R)
+    nearest_rotation(np.eye(3), R)
     lm_reprojection(np.eye(4), np.ascontiguousarray(Xc.T), np.zeros((1, 2)), np.eye(3), 1, 1e-10)
