@@ -322,4 +322,6 @@ def warm() -> None:
     R = np.empty((3, 3))
     so3_exp(0.1, 0.2, 0.3, R)
     nearest_rotation(np.eye(3), R)
+    reproj_normal_equations(np.eye(4), np.ascontiguousarray(Xc.T), np.zeros((1, 2)), np.eye(3), np.empty((6, 6)),
+                            np.empty(6))
     lm_reprojection(np.eye(4), np.ascontiguousarray(Xc.T), np.zeros((1, 2)), np.eye(3), 1, 1e-10)
