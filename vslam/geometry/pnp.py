@@ -87,7 +87,8 @@ def _refine_lm(T, K, X, x, dist, threshold_px, rounds: int = 2):
         if mask.sum() < 4:
             break
         if own:
-            T = pnp_kernels.lm_reprojection(T, X[mask], x[mask], K, LM_MAX_ITERS, LM_EPS)
+            T = pnp_kernels.lm_reprojection(np.ascontiguousarray(T, dtype=np.float64), X[mask], x[mask],
+                                            np.ascontiguousarray(K), LM_MAX_ITERS, LM_EPS)
         else:
             rvec = cv2.Rodrigues(T[:3, :3])[0]
             tvec = T[:3, 3].reshape(3, 1).copy()

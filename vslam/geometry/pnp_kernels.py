@@ -237,8 +237,8 @@ def _solve_spd6(A, b, out):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def nearest_rotation(M, R):  # pragma: no cover - compiled
-    """:func:`vslam.geometry.lie.project_to_so3` of ``M (3, 3)`` into ``R``: ``U diag(1, 1, det(U V^T)) V^T``
-    from the SVD ``M = U S V^T`` (the nearest rotation in the Frobenius norm)."""
+    """:func:`vslam.geometry.lie.project_to_so3` of ``M (3, 3)`` into ``R``: the nearest rotation in the
+    Frobenius norm, ``U diag(1, 1, det(U V^T)) V^T`` from the SVD ``M = U S V^T``."""
     U, _, Vt = np.linalg.svd(np.ascontiguousarray(M))
     for i in range(3):
         for j in range(3):
@@ -256,8 +256,9 @@ def lm_reprojection(T0, X, x, K, max_iters, eps):  # pragma: no cover - compiled
     """Levenberg-Marquardt on SE(3) of the squared reprojection error from ``T0 (4, 4)``; returns
     ``T (4, 4)``. It starts from :func:`nearest_rotation` of ``T0``'s rotation, as OpenCV's LM starts
     from ``cv2.Rodrigues`` of it (an SVD too): the tracker's poses are products of earlier ones, whose
-    round-off off SO(3) would otherwise grow from frame to frame (the updates keep it). Each step solves ``(H + lambda diag(H)) xi = -g`` (Marquardt 1963; ``H, g`` from
-    :func:`reproj_normal_equations`) and tries ``T <- [so3_exp(phi), rho; 0, 1] T``; a step that
+    round-off off SO(3) would otherwise grow from frame to frame (the updates keep it). Each step
+    solves ``(H + lambda diag(H)) xi = -g`` (Marquardt 1963; ``H, g`` from
+    :func:`reproj_normal_equations`, by Cholesky) and tries ``T <- [so3_exp(phi), rho; 0, 1] T``; a step that
     lowers the error is kept and ``lambda / 10``, otherwise ``lambda * 10``. Stops after
     ``max_iters`` steps, at a step with ``|xi|_inf < eps``, or when the damped system is singular.
     """
