@@ -83,7 +83,9 @@ def sevenscenes_localization(shared_data, tmp_path_factory):
 
 
 def test_7scenes_localization(sevenscenes_localization):
-    """Measured 367/400 localized (353 tracked, 14 relocalized), 33 lost, ATE 0.04961 m. History:
+    """Measured 368/400 localized (354 tracked, 14 relocalized), 32 lost, ATE 0.04946 m. History:
+    367/400 (353, 14, 33 lost), 0.04961 before solve_pnp's LM became our own compiled one instead of
+    ``cv2.solvePnPRefineLM`` (the same minimum to ~1e-9: the benchmark rows are the same files);
     369/400 (355, 14, 31 lost), 0.04550 before pose refinement stepped with ``lie.so3_exp`` instead of
     ``cv2.Rodrigues`` (the same formula, other rounding: the benchmark rows are the same files, but
     this run moves by two frames and 9 % of ATE: its figures are that sensitive to rounding);
@@ -95,8 +97,8 @@ def test_7scenes_localization(sevenscenes_localization):
     implausible-step check moves every one of these counts."""
     s = sevenscenes_localization
     assert s["frames"] == 400
-    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (367, 353, 14, 33), s
+    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (368, 354, 14, 32), s
     assert (s["implausible_steps"], s["track_failures"]) == (9, 13), s
     assert s["localized"] >= 360 and s["ate_rmse"] < 0.05
-    assert _band(s["ate_rmse"], 0.04961), s["ate_rmse"]
+    assert _band(s["ate_rmse"], 0.04946), s["ate_rmse"]
     assert s["matched_poses"] == s["localized"]
