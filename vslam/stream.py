@@ -48,6 +48,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.map.matching_kernels",
     "vslam.geometry.pnp_kernels",
     "vslam.features.orb_kernels",
+    "vslam.features.orb_describe_kernels",
     "vslam.datasets.depth_kernels",
     "vslam.features.match_kernels",
     "vslam.loop.vocabulary_kernels",
