@@ -94,7 +94,10 @@ class RotatedBrief:
 
     def __init__(self, patch_size: int = 31, border: int = 19) -> None:
         pairs = PAIRS_31 if patch_size == 31 else _opencv_random_pairs(patch_size)
-        self.pairs = np.ascontiguousarray(pairs, np.float32)
+        self.pairs = np.asarray(pairs, np.int64)
+        pts = self.pairs.reshape(-1, 2).astype(np.float32)  # points 2q, 2q + 1 form pair q
+        self.px = np.ascontiguousarray(pts[:, 0])
+        self.py = np.ascontiguousarray(pts[:, 1])
         self.border = int(border)
         # farthest rotated sample from the centre per axis after rounding (|x| <= norm, rounding is
         # monotone): 18 px for the 31 x 31 pattern
@@ -140,7 +143,7 @@ class RotatedBrief:
         if cx.min() < r or cy.min() < r or cx.max() >= w - r or cy.max() >= h - r:  # the kernel reads unchecked
             raise VslamError(f"ORB descriptor pattern of reach {r} leaves the {w}x{h} image")
         orb_describe_kernels.orb_descriptors(np.ascontiguousarray(smoothed), cx, cy,
-                                             np.ascontiguousarray(angle, np.float32), self.pairs, out)
+                                             np.ascontiguousarray(angle, np.float32), self.px, self.py, out)
         return out
 
 
