@@ -35,7 +35,7 @@ def _check(brief: RotatedBrief, img, x, y, ang, patch_size, border):
     ours = brief.describe(brief.smooth(img), x[keep], y[keep], ang[keep])
     assert ours.shape == ref.shape and ours.dtype == np.uint8
     bad = np.flatnonzero((ours != ref).any(1))
-    assert len(bad) == 0, f"{len(bad)} of {len(ref)} descriptors differ, first at {x[keep][bad[:3]]}, {y[keep][bad[:3]]}"
+    assert len(bad) == 0, f"{len(bad)} of {len(ref)} differ, first at {x[keep][bad[:3]]}, {y[keep][bad[:3]]}"
     return len(ids)
 
 
@@ -104,4 +104,4 @@ def test_descriptors_equal_opencv_on_real_frames_at_every_level(shared_data):
             n += _check(det.brief, img, x, y, ang, c.patch_size, det.border)
             n_levels += 1
         assert n_levels == c.n_levels
-    assert n > 4000
+    assert n == len(paths) * c.n_features  # every frame fills its quota; the border drops none

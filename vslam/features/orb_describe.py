@@ -83,8 +83,8 @@ class RotatedBrief:
     (checked bit for bit in the tests), without making the keypoints.
 
     What OpenCV does, and so do we: drop the keypoints outside ``border <= x < W - border`` (same
-    for ``y``; ``x`` rounded to the pixel), smooth the image by a 7 x 7, sigma 2 Gaussian (OpenCV blurs the
-    image in place inside its padded buffer, which takes the float separable filter, not
+    for ``y``; ``x`` rounded to the pixel), smooth the image by a 7 x 7, sigma 2 Gaussian (OpenCV
+    blurs the image in place inside its padded buffer, which takes the float separable filter, not
     ``GaussianBlur``'s fixed-point one: ``cv2.sepFilter2D`` with the float32 Gaussian kernel and
     reflect-101 borders is that filter), then compare the smoothed intensities at the rotated
     pattern pairs, centred on the rounded keypoint (compiled:
@@ -140,7 +140,7 @@ class RotatedBrief:
         cy = np.ascontiguousarray(y, np.int64) + p
         h, w = smoothed.shape
         r = self.reach
-        if cx.min() < r or cy.min() < r or cx.max() >= w - r or cy.max() >= h - r:  # the kernel reads unchecked
+        if cx.min() < r or cy.min() < r or cx.max() >= w - r or cy.max() >= h - r:  # unchecked reads
             raise VslamError(f"ORB descriptor pattern of reach {r} leaves the {w}x{h} image")
         orb_describe_kernels.orb_descriptors(np.ascontiguousarray(smoothed), cx, cy,
                                              np.ascontiguousarray(angle, np.float32), self.px, self.py, out)
