@@ -52,6 +52,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.map.database_kernels",
     "vslam.geometry.pnp_kernels",
     "vslam.features.orb_kernels",
+    "vslam.features.orb_describe_kernels",
     "vslam.datasets.depth_kernels",
     "vslam.features.match_kernels",
     "vslam.features.stereo_kernels",

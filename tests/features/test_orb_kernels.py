@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.features._orb_reference import opencv_orb
 from vslam.features.config import FeatureConfig
 from vslam.features.detect import OrbGridDetector
 from vslam.features.orb_describe import Orientation, responses
@@ -124,10 +125,8 @@ def test_fast_on_the_crop_equals_whole_image(astronaut, brick, threshold):
 
 
 def _detect_ref(det: OrbGridDetector, gray, mask=None):
-    """``OrbGridDetector.detect`` as it was: whole-image FAST, the integral-image orientation and the
-    two-sort grid selection (single threshold), same OpenCV descriptors."""
-    from vslam.features.orb_describe import make_keypoints, survivors
-
+    """``OrbGridDetector.detect`` as it was: whole-image FAST, the integral-image orientation, the
+    two-sort grid selection (single threshold) and OpenCV's descriptors (``cv2.ORB.compute``)."""
     c = det.config
     h0, w0 = gray.shape
     levels = build_pyramid(gray, c.n_levels, c.scale_factor)
@@ -159,8 +158,7 @@ def _detect_ref(det: OrbGridDetector, gray, mask=None):
         if len(x) == 0:
             continue
         ang = _orientation_ref(det.orientation, img, x, y)
-        kps_out, desc = det.orb.compute(img, make_keypoints(x, y, ang, float(c.patch_size)))
-        ids = survivors(kps_out, x, y)
+        ids, desc = opencv_orb(img, x, y, ang, c.patch_size, det.border)
         uv = np.stack([(x[ids] + 0.5) * (w0 / w) - 0.5, (y[ids] + 0.5) * (h0 / h) - 0.5], 1)
         parts.append((uv, desc, np.full(len(ids), lvl, np.int32), score[ids], ang[ids]))
     uv, desc, octv, resp, ang = (np.concatenate(z) for z in zip(*parts))

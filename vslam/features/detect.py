@@ -26,7 +26,7 @@ from vslam.errors import ConfigError
 from vslam.features import orb_kernels
 from vslam.features.config import FeatureConfig
 from vslam.features.keypoints import Features
-from vslam.features.orb_describe import Orientation, describe_orb, make_keypoints, responses, survivors
+from vslam.features.orb_describe import Orientation, RotatedBrief, describe_orb, responses
 from vslam.features.pyramid import build_pyramid, check_gray, grid_select, level_quotas
 
 __all__ = [
@@ -68,9 +68,9 @@ def _features_from_keypoints(kps, desc, binary: bool, scale_factor: float, dim: 
 class OrbGridDetector:
     """ORB with features spread over a grid on every pyramid level (see the module docstring).
 
-    Descriptors are computed per level by an ``nlevels=1`` OpenCV ORB on our own pyramid
-    images (OpenCV blurs each level with the same 7x7, sigma 2 Gaussian as multi-level ORB does),
-    which skips OpenCV rebuilding the pyramid."""
+    Descriptors are computed per level on our own pyramid images by :class:`RotatedBrief`, bit for
+    bit those of an ``nlevels=1`` ``cv2.ORB`` (each level blurred by the same 7x7, sigma 2 Gaussian
+    as multi-level ORB does), without a list of ``cv2.KeyPoint`` or OpenCV's pyramid buffer."""
 
     def __init__(self, config: FeatureConfig) -> None:
         self.config = config
@@ -81,8 +81,7 @@ class OrbGridDetector:
         if 0 < c.min_fast_threshold < c.fast_threshold:
             self.fast_low = cv2.FastFeatureDetector_create(threshold=c.min_fast_threshold, nonmaxSuppression=True)
         self.border = max(c.edge_threshold, c.patch_size // 2 + 1)
-        self.orb = cv2.ORB_create(nfeatures=c.n_features, nlevels=1, edgeThreshold=self.border,
-                                  patchSize=c.patch_size)
+        self.brief = RotatedBrief(c.patch_size, self.border)
         self.orientation = Orientation(c.patch_size)
 
     def _fast(self, detector, img: np.ndarray, mask: np.ndarray | None):
@@ -189,17 +188,17 @@ class OrbGridDetector:
             if cand is None or len(cand[0]) == 0:
                 continue
             x, y, score = cand
-            ang = self.orientation(levels[lvl], x, y)
-            kps = make_keypoints(x, y, ang, float(c.patch_size))
-            kps_out, desc = self.orb.compute(levels[lvl], kps)
-            if desc is None or not kps_out:
-                continue
-            ids = survivors(kps_out, x, y)
-            hl, wl = levels[lvl].shape
+            img = levels[lvl]
+            hl, wl = img.shape
+            inside = self.brief.inside(x, y, img.shape)  # all of them: FAST ran inside this border
+            if not inside.all():
+                x, y, score = x[inside], y[inside], score[inside]
+            ang = self.orientation(img, x, y)
+            desc = self.brief.describe(self.brief.smooth(img), x, y, ang)
             # pixel-centre-correct level-0 position: x0 = (x + 0.5) * W / W_l - 0.5 (a bias of
             # up to (s - 1) / 2 px otherwise, which does not cancel under rotation or zoom)
-            uv = np.stack([(x[ids] + 0.5) * (w0 / wl) - 0.5, (y[ids] + 0.5) * (h0 / hl) - 0.5], 1)
-            parts.append((uv, desc, np.full(len(ids), lvl, np.int32), score[ids], ang[ids]))
+            uv = np.stack([(x + 0.5) * (w0 / wl) - 0.5, (y + 0.5) * (h0 / hl) - 0.5], 1)
+            parts.append((uv, desc, np.full(len(x), lvl, np.int32), score, ang))
         if not parts:
             return Features.empty(True, 32, c.scale_factor)
         uv, desc, octv, resp, ang = (np.concatenate(z) for z in zip(*parts))
@@ -216,8 +215,7 @@ class GfttOrbDetector:
         self.config = config
         c = config
         self.border = max(c.edge_threshold, c.patch_size // 2 + 1)
-        self.orb = cv2.ORB_create(nfeatures=c.n_features, scaleFactor=c.scale_factor, nlevels=1,
-                                  edgeThreshold=self.border, patchSize=c.patch_size)
+        self.brief = RotatedBrief(c.patch_size, self.border)
         self.orientation = Orientation(c.patch_size)
 
     def detect(self, gray: np.ndarray, mask: np.ndarray | None = None) -> Features:
@@ -234,7 +232,7 @@ class GfttOrbDetector:
         if corners is None:
             return Features.empty(True, 32, c.scale_factor)
         uv = corners.reshape(-1, 2).astype(np.float32)
-        return describe_orb(gray, uv, self.orb, self.orientation, c.patch_size, c.scale_factor)
+        return describe_orb(gray, uv, self.brief, self.orientation, c.patch_size, c.scale_factor)
 
 
 

@@ -1,17 +1,17 @@
 """ORB description of given keypoints: intensity-centroid orientation (Rosin 1999; Rublee et al.,
-ICCV 2011, eq. 1-3) and rotated BRIEF descriptors computed by OpenCV, with the bookkeeping of which
-keypoints OpenCV kept."""
+ICCV 2011, eq. 1-3) and rotated BRIEF descriptors (compiled, :class:`RotatedBrief`), bit for bit those
+of ``cv2.ORB.compute`` with ``nlevels=1``."""
 from __future__ import annotations
 
-import itertools
 import operator
 
 import cv2
 import numpy as np
 
 from vslam.errors import VslamError
-from vslam.features import orb_kernels
+from vslam.features import orb_describe_kernels, orb_kernels
 from vslam.features.keypoints import Features
+from vslam.features.orb_pattern import PAIRS_31
 from vslam.features.pyramid import check_gray
 
 
@@ -62,32 +62,89 @@ class Orientation:
         return np.mod(ang, 360.0).astype(np.float32)
 
 
-def make_keypoints(x: np.ndarray, y: np.ndarray, angle: np.ndarray, size: float) -> list:
-    """``cv2.KeyPoint`` list at ``(x, y)`` with ``angle`` (degrees), octave 0 (built by ``map`` over
-    the 4-argument constructor, the fastest way to make many of them from Python)."""
-    n = len(x)
-    return list(map(cv2.KeyPoint, np.asarray(x, np.float64).tolist(), np.asarray(y, np.float64).tolist(),
-                    itertools.repeat(size, n), np.asarray(angle, np.float64).tolist()))
+def _opencv_random_pairs(patch_size: int) -> np.ndarray:
+    """The pattern ``cv2.ORB`` uses when ``patchSize != 31``: 512 points drawn uniformly from
+    ``[-r, r]^2`` (``r = patch_size // 2``, x then y) by OpenCV's multiply-with-carry generator
+    (``state = lo32(state) * 4164903690 + hi32(state)``, output ``lo32(state)``) seeded 0x34985739,
+    an integer ``u`` in ``[a, b)`` being ``a + u32 % (b - a)``; consecutive points form the pairs."""
+    state = 0x34985739
+    r = patch_size // 2
+    pts = []
+    for _ in range(2 * 512):
+        state = ((state & 0xFFFFFFFF) * 4164903690 + (state >> 32)) & 0xFFFFFFFFFFFFFFFF
+        pts.append(-r + (state & 0xFFFFFFFF) % (2 * r + 1))
+    return np.array(pts, np.int64).reshape(256, 4)
 
 
-def survivors(kps_out: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Input indices of the keypoints ``cv2.ORB.compute`` kept from those made at ``(x, y)``. ORB
-    only drops points (border filter, order-preserving), so when none were dropped they are
-    ``arange(len(x))``; otherwise one walk along both lists matches the (float32) positions."""
-    n_in = len(x)
-    if len(kps_out) == n_in:
-        return np.arange(n_in, dtype=np.int64)
-    pts = cv2.KeyPoint_convert(kps_out).reshape(-1, 2).tolist()
-    xin = np.asarray(x, np.float32).tolist()
-    yin = np.asarray(y, np.float32).tolist()
-    out = np.empty(len(pts), np.int64)
-    j = 0
-    for i, (u, v) in enumerate(pts):  # rare path (points dropped by OpenCV)
-        while xin[j] != u or yin[j] != v:
-            j += 1
-        out[i] = j
-        j += 1
-    return out
+class RotatedBrief:
+    """Rotated BRIEF (ORB, Rublee et al. ICCV 2011 Sec. 4) of keypoints at given pixels and angles
+    of one image, identical to ``cv2.ORB_create(nlevels=1, edgeThreshold=border,
+    patchSize=patch_size).compute`` on ``cv2.KeyPoint`` s with the same ``pt`` and ``angle``
+    (checked bit for bit in the tests), without making the keypoints.
+
+    What OpenCV does, and so do we: drop the keypoints outside ``border <= x < W - border`` (same
+    for ``y``; ``x`` rounded to the pixel), smooth the image by a 7 x 7, sigma 2 Gaussian (OpenCV
+    blurs the image in place inside its padded buffer, which takes the float separable filter, not
+    ``GaussianBlur``'s fixed-point one: ``cv2.sepFilter2D`` with the float32 Gaussian kernel and
+    reflect-101 borders is that filter), then compare the smoothed intensities at the rotated
+    pattern pairs, centred on the rounded keypoint (compiled:
+    :func:`vslam.features.orb_describe_kernels.orb_descriptors`). Samples that leave the image
+    read OpenCV's reflect-101 padding, unsmoothed, as OpenCV does; with the default border (19)
+    and patch (31) none do."""
+
+    def __init__(self, patch_size: int = 31, border: int = 19) -> None:
+        pairs = PAIRS_31 if patch_size == 31 else _opencv_random_pairs(patch_size)
+        self.pairs = np.asarray(pairs, np.int64)
+        pts = self.pairs.reshape(-1, 2).astype(np.float32)  # points 2q, 2q + 1 form pair q
+        self.px = np.ascontiguousarray(pts[:, 0])
+        self.py = np.ascontiguousarray(pts[:, 1])
+        self.border = int(border)
+        # farthest rotated sample from the centre per axis after rounding (|x| <= norm, rounding is
+        # monotone): 18 px for the 31 x 31 pattern
+        self.reach = int(np.rint(np.sqrt((pairs.reshape(-1, 2).astype(np.float64) ** 2).sum(1)).max()))
+        self.pad = max(0, self.reach - self.border)
+        self.kernel = cv2.getGaussianKernel(7, 2.0, ktype=cv2.CV_32F)
+        orb_describe_kernels.warm()
+
+    def smooth(self, img: np.ndarray) -> np.ndarray:
+        """The image the descriptors read: ``img`` smoothed, padded by ``self.pad`` pixels of its
+        unsmoothed reflect-101 extension (no padding in the default configuration)."""
+        blurred = cv2.sepFilter2D(img, cv2.CV_8U, self.kernel, self.kernel, borderType=cv2.BORDER_REFLECT_101)
+        p = self.pad
+        if p == 0:
+            return blurred
+        out = cv2.copyMakeBorder(img, p, p, p, p, cv2.BORDER_REFLECT_101)
+        out[p:-p, p:-p] = blurred
+        return out
+
+    def inside(self, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """``cv2.KeyPointsFilter.runByImageBorder``: which keypoints ``(x, y)`` (float32 or int)
+        are, rounded to the pixel (half to even, as OpenCV's ``cvRound``), at least ``border`` from
+        the edges of an image of ``shape = (H, W)``."""
+        h, w = shape
+        b = self.border
+        x, y = np.asarray(x), np.asarray(y)
+        if x.dtype.kind == "f":
+            x, y = np.rint(x), np.rint(y)
+        return (x >= b) & (y >= b) & (x < w - b) & (y < h - b)
+
+    def describe(self, smoothed: np.ndarray, x: np.ndarray, y: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        """``(N, 32) uint8`` descriptors of keypoints centred on the integer pixels ``(x, y)`` of the
+        original image (all ``inside`` it), ``angle`` in degrees; ``smoothed`` from :meth:`smooth`."""
+        n = len(x)
+        out = np.empty((n, self.pairs.shape[0] // 8), np.uint8)
+        if n == 0:
+            return out
+        p = self.pad
+        cx = np.ascontiguousarray(x, np.int64) + p
+        cy = np.ascontiguousarray(y, np.int64) + p
+        h, w = smoothed.shape
+        r = self.reach
+        if cx.min() < r or cy.min() < r or cx.max() >= w - r or cy.max() >= h - r:  # unchecked reads
+            raise VslamError(f"ORB descriptor pattern of reach {r} leaves the {w}x{h} image")
+        orb_describe_kernels.orb_descriptors(np.ascontiguousarray(smoothed), cx, cy,
+                                             np.ascontiguousarray(angle, np.float32), self.px, self.py, out)
+        return out
 
 
 def responses(kps) -> np.ndarray:
@@ -99,35 +156,32 @@ _RESPONSE = operator.attrgetter("response")
 
 
 
-def describe_orb(gray: np.ndarray, uv: np.ndarray, orb=None, orientation: Orientation | None = None,
-                 patch_size: int = 31, scale_factor: float = 1.2) -> Features:
+def describe_orb(gray: np.ndarray, uv: np.ndarray, brief: RotatedBrief | None = None,
+                 orientation: Orientation | None = None, patch_size: int = 31,
+                 scale_factor: float = 1.2) -> Features:
     """ORB descriptors (orientation by intensity centroid) at given level-0 pixels ``uv (N, 2)``.
 
-    Points too close to the border for the descriptor pattern are dropped; the returned
-    ``Features`` keep the input order of the survivors (check ``uv``)."""
+    Points too close to the border for the descriptor pattern (rounded to the pixel they are
+    described at) are dropped; the returned ``Features`` keep the input order of the survivors
+    (check ``uv``)."""
     gray = check_gray(gray)
     uv = np.asarray(uv, np.float32).reshape(-1, 2)
     border = max(19, patch_size // 2 + 1)
-    if orb is None:
-        orb = cv2.ORB_create(nfeatures=max(1, len(uv)), nlevels=1, edgeThreshold=border, patchSize=patch_size)
+    if brief is None:
+        brief = RotatedBrief(patch_size, border)
     if orientation is None:
         orientation = Orientation(patch_size)
     h, w = gray.shape
-    xi = np.round(uv[:, 0]).astype(np.int64)
+    xi = np.round(uv[:, 0]).astype(np.int64)  # half to even, as OpenCV's cvRound
     yi = np.round(uv[:, 1]).astype(np.int64)
     ok = (xi >= border) & (yi >= border) & (xi < w - border) & (yi < h - border)
-    idx_ok = np.flatnonzero(ok)
-    if len(idx_ok) == 0:
+    if brief.border != border:
+        ok &= brief.inside(xi, yi, gray.shape)
+    sel = np.flatnonzero(ok)
+    if len(sel) == 0:
         return Features.empty(True, 32, scale_factor)
-    ang = orientation(gray, xi[ok], yi[ok])
-    kps = make_keypoints(uv[ok, 0], uv[ok, 1], ang, float(patch_size))
-    kps_out, desc = orb.compute(gray, kps)
-    if desc is None or not kps_out:
-        return Features.empty(True, 32, scale_factor)
-    ids = survivors(kps_out, uv[ok, 0], uv[ok, 1])
-    order = np.argsort(ids, kind="stable")
-    ids, desc = ids[order], desc[order]
-    sel = idx_ok[ids]
+    ang = orientation(gray, xi[sel], yi[sel])
+    desc = brief.describe(brief.smooth(gray), xi[sel], yi[sel], ang)
     n = len(sel)
-    return Features(uv[sel], np.ascontiguousarray(desc), np.zeros(n, np.int32), np.zeros(n, np.float32),
-                    ang[ids], np.full(n, patch_size, np.float32), True, scale_factor)
+    return Features(uv[sel], desc, np.zeros(n, np.int32), np.zeros(n, np.float32),
+                    ang, np.full(n, patch_size, np.float32), True, scale_factor)
