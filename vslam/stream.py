@@ -51,6 +51,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.datasets.depth_kernels",
     "vslam.features.match_kernels",
     "vslam.loop.vocabulary_kernels",
+    "vslam.features.stereo_search_kernels",
 )
 
 
