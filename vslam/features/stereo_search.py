@@ -57,7 +57,7 @@ def usable_levels(shape: tuple[int, ...], levels: int, window: int) -> int:
 
 def match_rows(left: np.ndarray, right: np.ndarray, uv: np.ndarray, disp0: np.ndarray | None = None,
                window: int = 11, levels: int = 4, max_iter: int = 5, eps: float = 0.1,
-               min_grad2: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+               min_grad2: float = 0.1, min_zncc: float = 0.0, return_zncc: bool = False):
     """Disparities of the left pixels ``uv`` in the rectified pair by row Lucas-Kanade (module doc).
 
     Args:
@@ -70,10 +70,13 @@ def match_rows(left: np.ndarray, right: np.ndarray, uv: np.ndarray, disp0: np.nd
         eps: a level converged when ``delta^2 <= eps`` (OpenCV's criterion, level pixels).
         min_grad2: least mean squared zero-mean row gradient of the window, (grey levels / px)^2;
             0.1 is OpenCV's default minimum-eigenvalue threshold 1e-4 in these units.
+        min_zncc: least zero-mean normalized cross-correlation of the level-0 windows at the
+            result (rejects the wrong local minima a search from far away can end in).
+        return_zncc: also return that correlation per point (0 where not reached).
 
     Returns:
-        ``(disparity (N,), ok (N,) bool)``; ``u_right = u - disparity``. Rows with ``ok = False``
-        are undefined.
+        ``(disparity (N,), ok (N,) bool)`` (and ``zncc (N,)`` with ``return_zncc``);
+        ``u_right = u - disparity``. Rows with ``ok = False`` are undefined.
     """
     if left.ndim != 2 or right.ndim != 2 or left.dtype != np.uint8 or right.dtype != np.uint8:
         raise ValueError("match_rows needs two uint8 (H, W) images")
@@ -83,14 +86,14 @@ def match_rows(left: np.ndarray, right: np.ndarray, uv: np.ndarray, disp0: np.nd
     d0 = np.where(np.isfinite(d0), d0, 0.0)
     disp = np.zeros(n)
     ok = np.zeros(n, bool)
+    zncc = np.zeros(n)
     if n == 0:
-        return disp, ok
+        return (disp, ok, zncc) if return_zncc else (disp, ok)
     w = int(window) // 2
     nlev = usable_levels(left.shape, int(levels), 2 * w + 1)
     pad = w + 3
     pl, offs, ws, hs = row_pyramid(left, nlev, pad)
     pr, _, _, _ = row_pyramid(right, nlev, pad)
-    last = np.zeros(n)
     row_lk(pl, pr, offs, ws, hs, pad, np.ascontiguousarray(uv[:, 0]), np.ascontiguousarray(uv[:, 1]), d0, w,
-           int(max_iter), float(eps), float(min_grad2), disp, ok, last)
-    return disp, ok
+           int(max_iter), float(eps), float(min_grad2), float(min_zncc), disp, ok, zncc)
+    return (disp, ok, zncc) if return_zncc else (disp, ok)

@@ -76,8 +76,84 @@ def _template(img, start, stride, fx, W, g):  # pragma: no cover - compiled
     return np.float64(sgg) - np.float64(sg) * np.float64(sg) / area, np.float64(sig) - np.float64(mg) * np.float64(si)
 
 
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _zncc(left, lstart, fl, right, rstart, fr, stride, W):  # pragma: no cover - compiled
+    """Zero-mean normalized cross-correlation of the two windows starting (sub-pixel) ``fl`` / ``fr``
+    right of the flat indices ``lstart`` / ``rstart`` (rows ``stride`` apart, linear interpolation
+    along the row); 0 where either window is flat."""
+    bl = np.float32(fl)
+    al = np.float32(1.0) - bl
+    br = np.float32(fr)
+    ar = np.float32(1.0) - br
+    si = np.float32(0.0)
+    sj = np.float32(0.0)
+    sii = np.float32(0.0)
+    sjj = np.float32(0.0)
+    sij = np.float32(0.0)
+    for r in range(W):
+        lo = lstart + r * stride
+        ro = rstart + r * stride
+        lrow = left[lo:lo + W + 1]
+        rrow = right[ro:ro + W + 1]
+        for c in range(W):
+            iv = al * np.float32(lrow[c]) + bl * np.float32(lrow[c + 1])
+            jv = ar * np.float32(rrow[c]) + br * np.float32(rrow[c + 1])
+            si += iv
+            sj += jv
+            sii += iv * iv
+            sjj += jv * jv
+            sij += iv * jv
+    n = W * W
+    vi = np.float64(sii) - np.float64(si) * np.float64(si) / n
+    vj = np.float64(sjj) - np.float64(sj) * np.float64(sj) / n
+    if vi <= 1e-9 or vj <= 1e-9:
+        return 0.0
+    return (np.float64(sij) - np.float64(si) * np.float64(sj) / n) / np.sqrt(vi * vj)
+
+
 @njit(cache=True, nogil=True)
-def row_lk(left, right, offs, widths, heights, pad, u, v, d0, w, max_iter, eps, min_grad2, disp, ok, last_step):  # pragma: no cover - compiled
+def _iterate(right, rstart, stride, g, W, xs, d, sig, hgg, k_min, k_max, max_iter, eps):  # pragma: no cover - compiled
+    """Gauss-Newton steps of one level from the disparity ``d`` (module doc): the right window
+    starts at ``xs - d`` (column ``k + a`` of the row starting at flat index ``rstart``), its
+    integer start ``k`` must stay in ``[k_min, k_max]``. Returns ``(d, last step, status)``:
+    0 converged (``step^2 <= eps``, or oscillating: half the last step taken, as OpenCV does),
+    1 ``max_iter`` steps taken, 2 the window left the image, 3 NaN."""
+    kc = np.int64(-(1 << 40))  # integer start whose T(k), T(k + 1) are cached
+    t0 = 0.0
+    t1 = 0.0
+    prev = 0.0
+    step = 0.0
+    for it in range(max_iter):
+        xr = xs - d
+        if not (xr == xr):
+            return d, step, 3
+        k = np.int64(np.floor(xr))
+        if k < k_min or k > k_max:
+            return d, step, 2
+        a = xr - k
+        if k == kc + 1:
+            t0 = t1
+            t1 = _dot_at(right, rstart + k + 1, stride, g, W)
+        elif k == kc - 1:
+            t1 = t0
+            t0 = _dot_at(right, rstart + k, stride, g, W)
+        elif k != kc:
+            t0 = _dot_at(right, rstart + k, stride, g, W)
+            t1 = _dot_at(right, rstart + k + 1, stride, g, W)
+        kc = k
+        step = ((1.0 - a) * t0 + a * t1 - sig) / hgg
+        if it > 0 and abs(step + prev) < 0.01:
+            return d + 0.5 * step, step, 0
+        d += step
+        prev = step
+        if step * step <= eps:
+            return d, step, 0
+    return d, step, 1
+
+
+@njit(cache=True, nogil=True)
+def row_lk(left, right, offs, widths, heights, pad, u, v, d0, w, max_iter, eps, min_grad2, min_zncc, disp, ok,
+           zncc):  # pragma: no cover - compiled
     """Coarse-to-fine row Lucas-Kanade for every point ``(u[i], v[i])`` (level-0 pixels) from the
     initial disparity ``d0[i]`` (level-0 pixels).
 
@@ -87,9 +163,11 @@ def row_lk(left, right, offs, widths, heights, pad, u, v, d0, w, max_iter, eps, 
     ``delta^2 <= eps`` (OpenCV's criterion), or halves its last step when it oscillates
     (``|delta + previous delta| < 0.01``, as OpenCV does); the disparity is doubled for the next level.
 
-    Fills ``disp`` (level-0 pixels), ``ok`` (the window's mean squared zero-mean row gradient is at
-    least ``min_grad2`` at every level, level 0 converged, all windows inside the padded images at
-    level 0) and ``last_step`` (the last level-0 step, pixels).
+    Fills ``disp`` (level-0 pixels), ``zncc`` (the level-0 windows' zero-mean normalized
+    cross-correlation at ``disp``; 0 where not reached) and ``ok``: the window's mean squared
+    zero-mean row gradient is at least ``min_grad2`` at every level, level 0 converged with all
+    windows inside the padded images, and ``zncc >= min_zncc`` (a wrong local minimum of the SSD
+    correlates poorly).
     """
     W = 2 * w + 1
     area = W * W
@@ -121,47 +199,30 @@ def row_lk(left, right, offs, widths, heights, pad, u, v, d0, w, max_iter, eps, 
             if hgg < min_grad2 * area:
                 good = False
                 break
-            kc = np.int64(-(1 << 40))  # integer start whose T(k), T(k + 1) are cached
-            t0 = 0.0
-            t1 = 0.0
-            prev = 0.0
-            converged = False
-            for it in range(max_iter):
-                xr = xs - d
-                if not (xr == xr):  # NaN
-                    good = False
-                    break
-                k = np.int64(np.floor(xr))
-                if k < -pad or k + W + 1 > wl + pad:
-                    if lev == 0:
-                        good = False
-                    break
-                a = xr - k
-                if k == kc + 1:
-                    t0 = t1
-                    t1 = _dot_at(right, rstart + k + 1, stride, g, W)
-                elif k == kc - 1:
-                    t1 = t0
-                    t0 = _dot_at(right, rstart + k, stride, g, W)
-                elif k != kc:
-                    t0 = _dot_at(right, rstart + k, stride, g, W)
-                    t1 = _dot_at(right, rstart + k + 1, stride, g, W)
-                kc = k
-                step = ((1.0 - a) * t0 + a * t1 - sig) / hgg
-                if it > 0 and abs(step + prev) < 0.01:
-                    d += 0.5 * step
-                    converged = True
-                    break
-                d += step
-                prev = step
-                if step * step <= eps:
-                    converged = True
-                    break
+            d, step, status = _iterate(right, rstart, stride, g, W, xs, d, sig, hgg, -pad, wl + pad - W - 1, max_iter,
+                                       eps)
+            converged = status == 0
+            if status == 3 or (status == 2 and lev == 0):  # NaN, or the level-0 window left the image
+                good = False
             if not good:
                 break
         disp[i] = d
-        ok[i] = good and converged
-        last_step[i] = step
+        zn = 0.0
+        if good and converged:
+            # the level-0 window (its row, start and stride as in the loop above at lev == 0)
+            stride = widths[0] + 2 * pad
+            xs = u[i] - w
+            iy = np.int64(np.floor(v[i] + 0.5)) - w
+            ix = np.int64(np.floor(xs))
+            xr = xs - d
+            k = np.int64(np.floor(xr))
+            if k >= -pad and k + W + 1 <= widths[0] + pad:
+                rstart = offs[0] + (iy + pad) * stride + pad
+                zn = _zncc(left, rstart + ix, xs - ix, right, rstart + k, xr - k, stride, W)
+            else:
+                good = False
+        zncc[i] = zn
+        ok[i] = good and converged and zn >= min_zncc
 
 
 def warm() -> None:
@@ -171,5 +232,5 @@ def warm() -> None:
     i64 = np.array([0], np.int64)
     one = np.array([8], np.int64)
     x = np.array([4.0])
-    row_lk(img, img, i64, one, one, pad, x, x, np.zeros(1), w, 2, 0.01, 0.1, np.zeros(1), np.zeros(1, np.bool_),
+    row_lk(img, img, i64, one, one, pad, x, x, np.zeros(1), w, 2, 0.01, 0.1, 0.5, np.zeros(1), np.zeros(1, np.bool_),
            np.zeros(1))

@@ -30,6 +30,7 @@ class DepthConfig:
     stereo_flow_levels: int = param(4, "pyramid levels above the base of that LK")
     stereo_flow_max_iter: int = param(5, "LK iterations per level (the row refinement sets the final disparity)")
     stereo_flow_eps: float = param(0.1, "LK convergence threshold per level")
+    stereo_flow_min_zncc: float = param(0.5, "row: least normalized cross-correlation of a match's windows (rejects wrong minima)")
 
 
 @dataclass(frozen=True)

@@ -96,6 +96,7 @@ def stereo_by_flow(
     left: np.ndarray, right: np.ndarray, uv: np.ndarray, camera: PinholeCamera,
     max_depth_baselines: float = 60.0, max_dy: float = 1.5, min_depth: float = 0.1, init_disparity: np.ndarray | None = None,
     window: int = 11, levels: int = 4, max_iter: int = 5, eps: float = 0.1, flow: str = "lk2d",
+    min_zncc: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth of left keypoints in a rectified pair; ``z = fx b / (u_l - u_r)``.
 
@@ -107,7 +108,8 @@ def stereo_by_flow(
     0.3-0.6 % too large (``tests/frontend/test_stereo_by_flow.py``). ``flow="row"``: the same
     pyramid with the disparity as the only unknown
     (:func:`vslam.features.stereo_search.match_rows`), cheaper and without that bias
-    (``max_dy`` does not apply).
+    (``max_dy`` does not apply; instead the windows' normalized cross-correlation must reach
+    ``min_zncc``).
 
     ``window`` / ``levels`` / ``max_iter`` / ``eps``: that pyramidal LK (``frontend.depth.stereo_flow_*``).
     Returns ``(depth (N,) NaN where unmatched, u_right (N,))``.
@@ -124,7 +126,7 @@ def stereo_by_flow(
         from vslam.features.stereo_search import match_rows
 
         d_flow, ok = match_rows(left, right, uv, init_disparity, window=window, levels=levels, max_iter=max_iter,
-                                eps=eps)
+                                eps=eps, min_zncc=min_zncc)
     else:
         init = uv.copy()
         if init_disparity is not None:
@@ -157,7 +159,7 @@ def stereo_pair_depth(frame, gray: np.ndarray, uv: np.ndarray, camera: PinholeCa
     d = depth_cfg
     return stereo_by_flow(gray, right, uv, camera, d.stereo_max_depth_baselines, d.stereo_max_dy, d.min_depth,
                           init_disparity, d.stereo_flow_window, d.stereo_flow_levels, d.stereo_flow_max_iter,
-                          d.stereo_flow_eps, d.stereo_flow)
+                          d.stereo_flow_eps, d.stereo_flow, d.stereo_flow_min_zncc)
 
 
 def detect_mask(shape: tuple[int, int], uv: np.ndarray, radius: int) -> np.ndarray:
