@@ -9,11 +9,15 @@ zero-mean row gradient ``g`` of the left window,
     ``delta = sum((J(x - d) - I(x)) g) / sum(g^2)``,
 
 then ``2 d`` starts the next level. A point is ``ok`` when the window has row texture at every
-level (``mean g^2 >= min_grad2``, the 1-D form of OpenCV's minimum-eigenvalue test) and the
-level-0 iteration converged. Unlike a 2-D tracker it has no vertical shift that could absorb part
+level (``mean g^2 >= min_grad2``, the 1-D form of OpenCV's minimum-eigenvalue test), the level-0
+iteration converged, and the level-0 windows correlate (ZNCC ``>= min_zncc``: a start outside the
+basin of the true minimum, which as for any Lucas-Kanade is a few pixels at the coarsest level,
+ends in a wrong local minimum). Unlike a 2-D tracker it has no vertical shift that could absorb part
 of the disparity on oriented texture (see :func:`vslam.features.stereo.refine_disparity_row`),
-and each iteration costs one or two window dot products (kernel in
-:mod:`vslam.features.stereo_search_kernels`).
+and each iteration costs at most two window dot products (kernel in
+:mod:`vslam.features.stereo_search_kernels`). Measured single-threaded on KITTI 06 (2000 ORB
+keypoints): 5.9 ms per frame against 8.6 ms for OpenCV's 2-D tracker (window 11, 4 levels, 5
+iterations both), 58 % of the keypoints matched against 56 %.
 
 Example:
     >>> disp, ok = match_rows(left, right, uv)   # doctest: +SKIP

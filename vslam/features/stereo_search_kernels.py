@@ -12,7 +12,8 @@ linearly along x) gives (Lucas & Kanade 1981; the gradient of the template as in
 ``g`` is zero-mean, so a brightness offset between the cameras drops out of the numerator. With
 the right window starting at ``k + a`` (``k`` integer, ``0 <= a < 1``) the numerator is
 ``(1 - a) T(k) + a T(k + 1) - sum(I g)`` with ``T(k) = sum g(r, c) J(r, k + c)``: one dot product
-per integer start the iteration visits (cached), not a window interpolation per iteration.
+per integer start the iteration visits (cached), not a window interpolation per iteration. At
+level 0 the zero-mean normalized cross-correlation of the two windows is the last check.
 """
 from __future__ import annotations
 
