@@ -40,6 +40,21 @@ def _dot_at(img, start, stride, g, W):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
+def _dot2_at(img, start, stride, g, W):  # pragma: no cover - compiled
+    """``(_dot_at(img, start, ...), _dot_at(img, start + 1, ...))`` in one pass over the rows."""
+    s0 = np.float32(0.0)
+    s1 = np.float32(0.0)
+    for r in range(W):
+        o = start + r * stride
+        row = img[o:o + W + 1]
+        gr = g[r]
+        for c in range(W):
+            s0 += gr[c] * np.float32(row[c])
+            s1 += gr[c] * np.float32(row[c + 1])
+    return np.float64(s0), np.float64(s1)
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
 def _template(img, start, stride, fx, W, g):  # pragma: no cover - compiled
     """The left window starting (sub-pixel) ``fx`` right of flat index ``start`` (row 0, column 0),
     interpolated linearly along the row: fills ``g`` (W, W) float32 with its zero-mean row
@@ -139,8 +154,7 @@ def _iterate(right, rstart, stride, g, W, xs, d, sig, hgg, k_min, k_max, max_ite
             t1 = t0
             t0 = _dot_at(right, rstart + k, stride, g, W)
         elif k != kc:
-            t0 = _dot_at(right, rstart + k, stride, g, W)
-            t1 = _dot_at(right, rstart + k + 1, stride, g, W)
+            t0, t1 = _dot2_at(right, rstart + k, stride, g, W)
         kc = k
         step = ((1.0 - a) * t0 + a * t1 - sig) / hgg
         if it > 0 and abs(step + prev) < 0.01:
