@@ -16,7 +16,7 @@ ends in a wrong local minimum). Unlike a 2-D tracker it has no vertical shift th
 of the disparity on oriented texture (see :func:`vslam.features.stereo.refine_disparity_row`),
 and each iteration costs at most two window dot products (kernel in
 :mod:`vslam.features.stereo_search_kernels`). Measured single-threaded on KITTI 06 (2000 ORB
-keypoints): 5.9 ms per frame against 8.6 ms for OpenCV's 2-D tracker (window 11, 4 levels, 5
+keypoints): 4.7 ms per frame against 7.6 ms for OpenCV's 2-D tracker (window 11, 4 levels, 5
 iterations both), 58 % of the keypoints matched against 56 %.
 
 Example:
