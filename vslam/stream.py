@@ -57,6 +57,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.features.match_kernels",
     "vslam.features.stereo_kernels",
     "vslam.loop.vocabulary_kernels",
+    "vslam.features.stereo_search_kernels",
 )
 
 

@@ -17,15 +17,17 @@ def _gray(img: np.ndarray) -> np.ndarray:
     return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
 
 
-def test_stereo_by_flow_synthetic_depth_unbiased():
-    """Rendered rectified pair (exact depth): disparity error < 0.1 % (median and trimmed mean)."""
+@pytest.mark.parametrize("flow", ["lk2d", "row"])
+def test_stereo_by_flow_synthetic_depth_unbiased(flow):
+    """Rendered rectified pair (exact depth): disparity error < 0.1 % (median and trimmed mean),
+    with either matcher before the row refinement (``frontend.depth.stereo_flow``)."""
     cfg = SyntheticConfig(n_frames=4, laps=0.05, baseline=0.1, pixel_noise=0.0, seed=1)
     seq = SyntheticSequence(cfg)
     frame = next(iter(seq))
     cam = seq.camera
     left, right, depth = _gray(frame.image), _gray(frame.image_right), frame.depth
     uv = np.asarray(create_detector(FeatureConfig(n_features=1500)).detect(left).uv, float)
-    z, u_right = stereo_by_flow(left, right, uv, cam)
+    z, u_right = stereo_by_flow(left, right, uv, cam, flow=flow)
     ui, vi = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
     # ground truth where the surface is smooth around the keypoint (no occlusion edge in the window)
     span = cv2.dilate(depth, np.ones((13, 13))) - cv2.erode(depth, np.ones((13, 13)))
@@ -67,3 +69,13 @@ def test_stereo_by_flow_kitti_agrees_with_sgbm(shared_data):
         d2 = uv[:, 0] - uvr[:, 0]
         m2 = ok & (np.abs(uvr[:, 1] - uv[:, 1]) < 1.5) & (d_sgbm > 12) & (np.abs(d2 - d_sgbm) < 1.0)
         assert ((d2[m2] - d_sgbm[m2]) / d_sgbm[m2]).mean() < -2.5e-3
+
+
+def test_stereo_flow_setting_checked():
+    """``frontend.depth.stereo_flow`` is lk2d or row; anything else is a configuration error."""
+    from vslam.errors import ConfigError
+    from vslam.frontend.config import DepthConfig, FrontendConfig
+
+    assert FrontendConfig(depth=DepthConfig(stereo_flow="row")).depth.stereo_flow == "row"
+    with pytest.raises(ConfigError, match="stereo_flow"):
+        FrontendConfig(depth=DepthConfig(stereo_flow="sgbm"))

@@ -14,6 +14,7 @@ from vslam.param import param, section
 ASSOCIATIONS = ("match", "track")
 MOTIONS = ("3d2d", "3d3d", "2d2d")
 SENSORS = ("mono", "stereo", "rgbd")
+STEREO_FLOWS = ("lk2d", "row")
 
 
 @dataclass(frozen=True)
@@ -23,11 +24,13 @@ class DepthConfig:
     min_depth: float = param(0.1, "metres; nearer depth / stereo points are ignored")
     max_depth: float = param(10.0, "metres; farther RGB-D depths are ignored")
     stereo_max_depth_baselines: float = param(60.0, "stereo points farther than this many baselines are 'far' (no depth)")
-    stereo_max_dy: float = param(1.5, "px; rows of a rectified stereo match must agree within this")
+    stereo_max_dy: float = param(1.5, "px; rows of a rectified stereo match must agree within this (stereo_flow lk2d)")
+    stereo_flow: str = param("lk2d", "stereo matches: lk2d (OpenCV 2-D pyramidal LK) or row (pyramidal LK along the row)")
     stereo_flow_window: int = param(11, "window side of the left-to-right pyramidal LK that finds stereo matches, pixels")
     stereo_flow_levels: int = param(4, "pyramid levels above the base of that LK")
     stereo_flow_max_iter: int = param(5, "LK iterations per level (the row refinement sets the final disparity)")
     stereo_flow_eps: float = param(0.1, "LK convergence threshold per level")
+    stereo_flow_min_zncc: float = param(0.5, "row: least normalized cross-correlation of a match's windows (rejects wrong minima)")
 
 
 @dataclass(frozen=True)
@@ -217,6 +220,8 @@ class FrontendConfig:
             raise ConfigError(f"frontend.tracking.min_inliers must be >= 6, got {self.tracking.min_inliers}")
         if self.dense.refine_downsample < 1:
             raise ConfigError(f"frontend.dense.refine_downsample must be >= 1 (1 = full resolution), got {self.dense.refine_downsample}")
+        if self.depth.stereo_flow not in STEREO_FLOWS:
+            raise ConfigError(f"frontend.depth.stereo_flow must be one of {STEREO_FLOWS}, got {self.depth.stereo_flow!r}")
         if not 0 <= self.depth.min_depth < self.depth.max_depth:
             raise ConfigError(f"frontend.depth.min_depth ({self.depth.min_depth}) must be >= 0 and below "
                               f"frontend.depth.max_depth ({self.depth.max_depth}), metres")

@@ -95,17 +95,23 @@ def klt_track(
 def stereo_by_flow(
     left: np.ndarray, right: np.ndarray, uv: np.ndarray, camera: PinholeCamera,
     max_depth_baselines: float = 60.0, max_dy: float = 1.5, min_depth: float = 0.1, init_disparity: np.ndarray | None = None,
-    window: int = 11, levels: int = 4, max_iter: int = 5, eps: float = 0.1,
+    window: int = 11, levels: int = 4, max_iter: int = 5, eps: float = 0.1, flow: str = "lk2d",
+    min_zncc: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth of left keypoints in a rectified pair; ``z = fx b / (u_l - u_r)``.
 
-    Two stages: pyramidal Lucas-Kanade from left into right (Bouguet 2001; OpenCV, 2-D, one way)
-    finds each match, then :func:`vslam.features.stereo.refine_disparity_row` re-estimates the
-    disparity with the shift restricted to the image row. The 2-D tracker alone is biased: on
-    oriented texture the vertical shift it also solves for absorbs part of the disparity, which
-    made KITTI 06 depths 0.3-0.6 % too large (``tests/frontend/test_stereo_by_flow.py``).
+    Two stages: a pyramidal Lucas-Kanade from left into right finds each match, then
+    :func:`vslam.features.stereo.refine_disparity_row` re-estimates the disparity with the shift
+    restricted to the image row. ``flow="lk2d"``: OpenCV's 2-D tracker (Bouguet 2001, one way),
+    whose matches must stay within ``max_dy`` rows; alone it is biased: on oriented texture the
+    vertical shift it also solves for absorbs part of the disparity, which made KITTI 06 depths
+    0.3-0.6 % too large (``tests/frontend/test_stereo_by_flow.py``). ``flow="row"``: the same
+    pyramid with the disparity as the only unknown
+    (:func:`vslam.features.stereo_search.match_rows`), cheaper and without that bias
+    (``max_dy`` does not apply; instead the windows' normalized cross-correlation must reach
+    ``min_zncc``).
 
-    ``window`` / ``levels`` / ``max_iter`` / ``eps``: that 2-D LK (``frontend.depth.stereo_flow_*``).
+    ``window`` / ``levels`` / ``max_iter`` / ``eps``: that pyramidal LK (``frontend.depth.stereo_flow_*``).
     Returns ``(depth (N,) NaN where unmatched, u_right (N,))``.
     """
     from vslam.features.stereo import refine_disparity_row
@@ -115,17 +121,25 @@ def stereo_by_flow(
     u_right = np.full(n, np.nan)
     if n == 0 or camera.baseline is None:
         return depth, u_right
-    init = uv.copy()
-    if init_disparity is not None:
-        d0 = np.where(np.isfinite(init_disparity), init_disparity, 0.0)
-        init[:, 0] -= d0
-    # one way only, few iterations: the row refinement below sets the final value, and the row
-    # constraint rejects the failures a backward check would
-    uvr, ok = klt_track(left, right, uv, init_uv=init, window=window, levels=levels, fb_threshold=0.0, max_iter=max_iter,
-                        eps=eps)
     min_disp = camera.fx / max_depth_baselines
-    ok &= (np.abs(uvr[:, 1] - uv[:, 1]) < max_dy) & (uv[:, 0] - uvr[:, 0] > min_disp)
-    disp, ok_row = refine_disparity_row(left, right, uv, np.where(ok, uv[:, 0] - uvr[:, 0], np.nan))
+    if flow == "row":
+        from vslam.features.stereo_search import match_rows
+
+        d_flow, ok = match_rows(left, right, uv, init_disparity, window=window, levels=levels, max_iter=max_iter,
+                                eps=eps, min_zncc=min_zncc)
+    else:
+        init = uv.copy()
+        if init_disparity is not None:
+            d0 = np.where(np.isfinite(init_disparity), init_disparity, 0.0)
+            init[:, 0] -= d0
+        # one way only, few iterations: the row refinement below sets the final value, and the row
+        # constraint rejects the failures a backward check would
+        uvr, ok = klt_track(left, right, uv, init_uv=init, window=window, levels=levels, fb_threshold=0.0,
+                            max_iter=max_iter, eps=eps)
+        ok &= np.abs(uvr[:, 1] - uv[:, 1]) < max_dy
+        d_flow = uv[:, 0] - uvr[:, 0]
+    ok &= d_flow > min_disp
+    disp, ok_row = refine_disparity_row(left, right, uv, np.where(ok, d_flow, np.nan))
     ok &= ok_row & (disp > min_disp)
     z = np.where(ok, camera.fx * camera.baseline / np.where(ok, disp, 1.0), np.nan)
     ok &= (z >= min_depth)
@@ -145,7 +159,7 @@ def stereo_pair_depth(frame, gray: np.ndarray, uv: np.ndarray, camera: PinholeCa
     d = depth_cfg
     return stereo_by_flow(gray, right, uv, camera, d.stereo_max_depth_baselines, d.stereo_max_dy, d.min_depth,
                           init_disparity, d.stereo_flow_window, d.stereo_flow_levels, d.stereo_flow_max_iter,
-                          d.stereo_flow_eps)
+                          d.stereo_flow_eps, d.stereo_flow, d.stereo_flow_min_zncc)
 
 
 def detect_mask(shape: tuple[int, int], uv: np.ndarray, radius: int) -> np.ndarray:
