@@ -109,3 +109,21 @@ def test_gather_keyframe_equals_member_keypoints_and_the_gathers():
         assert np.array_equal(out[2][5:n], uv[ref_sel]) and np.array_equal(out[3][5:n], octave[ref_sel])
         assert np.array_equal(out[4][5:n], depth[ref_sel]) == use_depth
         assert np.all(out[0][:5] == -7)
+
+
+def test_unit_rays_equal_the_numpy_gathers_and_normalization():
+    """The fused gathers + normalization of the builder's parallax test against the NumPy expressions
+    they replaced (``position[pt] - centre[kf]``, divided by ``max(row_norms, 1e-12)``), a zero ray included."""
+    from vslam.backend.local_problem import row_norms
+    from vslam.backend.local_problem_kernels import unit_rays
+
+    rng = np.random.default_rng(6)
+    position = rng.normal(size=(500, 3)) * 10.0 ** rng.uniform(-3, 3, (500, 1))
+    centre = rng.normal(size=(40, 3))
+    pt, kf = rng.integers(0, 500, 5000), rng.integers(0, 40, 5000)
+    position[pt[0]] = centre[kf[0]]  # a zero ray: divided by the 1e-12 floor
+    ref = position[pt] - centre[kf]
+    ref /= np.maximum(row_norms(ref), 1e-12)[:, None]
+    got = np.empty((5000, 3))
+    unit_rays(position, pt, centre, kf, got)
+    assert np.array_equal(got, ref) and np.all(got[0] == 0.0)

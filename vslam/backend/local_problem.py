@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam.backend.config import BackendConfig
-from vslam.backend.local_problem_kernels import gather_keyframe, scatter_min
+from vslam.backend.local_problem_kernels import gather_keyframe, scatter_min, unit_rays
 from vslam.backend.problem import BAProblem
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
@@ -44,6 +44,11 @@ def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray
     """
     ray = X_world - centres
     ray /= np.maximum(row_norms(ray), 1e-12)[:, None]
+    return parallax_of_rays(ray, point, n_points)
+
+
+def parallax_of_rays(ray: np.ndarray, point: np.ndarray, n_points: int) -> np.ndarray:
+    """:func:`max_parallax_deg` from the unit rays ``ray (M, 3)`` of the observations."""
     first = np.full(n_points, -1, np.int64)
     first[point[::-1]] = np.arange(len(point))[::-1]  # the last write wins: the first observation
     cos = np.einsum("ij,ij->i", ray, ray[first[point]])
@@ -135,7 +140,7 @@ class LocalProblemBuilder:
         cols = self._gather(kf_ids, member, n_rows)
         if not cols["kf"]:
             return None
-        c = {k: np.concatenate(v) for k, v in cols.items()}
+        c = {k: v[0] if len(v) == 1 else np.concatenate(v) for k, v in cols.items()}  # (one array: no copy)
         # a point needs two observations, or one with depth / disparity, to be determined
         pt_ids, inv = unique_rows(c["pt"], n_rows)
         n_obs = np.bincount(inv, minlength=len(pt_ids))
@@ -145,8 +150,9 @@ class LocalProblemBuilder:
         if self.sensor != "mono" and self.config.depthless_min_parallax_deg > 0:
             # stereo / RGB-D: a point without any depth or disparity here (far stereo points enter
             # as monocular) whose rays barely diverge has an unobservable depth
-            ok_pt &= has3 | (max_parallax_deg(self._centres(kf_ids, c["kf"]), store.position[c["pt"]], inv, len(pt_ids))
-                             >= self.config.depthless_min_parallax_deg)
+            ray = np.empty((len(inv), 3))  # the unit rays of max_parallax_deg, gathered in one compiled pass
+            unit_rays(store.position, c["pt"], self._centre_lut(kf_ids), c["kf"], ray)
+            ok_pt &= has3 | (parallax_of_rays(ray, inv, len(pt_ids)) >= self.config.depthless_min_parallax_deg)
         left_out = None
         if self.sensor == "mono" and self.config.mono.min_observations > 2:
             # two-view points: the least constrained depth, which BA pushes outwards (~1 % per
@@ -249,9 +255,8 @@ class LocalProblemBuilder:
         cols["ur"], cols["d"] = [ur], [d]
         return cols
 
-    def _centres(self, kf_ids: list[int], obs_kf: np.ndarray) -> np.ndarray:
-        """Camera centre (world) of the keyframe of each observation ``obs_kf (M,)``."""
-        ids = np.asarray(kf_ids, np.int64)
-        lut = np.empty((int(ids.max()) + 1, 3))  # keyframe id -> centre (a gather, not a search)
-        lut[ids] = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in kf_ids])
-        return lut[obs_kf]
+    def _centre_lut(self, kf_ids: list[int]) -> np.ndarray:
+        """Camera centres (world) by keyframe id: row ``k`` for each ``k`` of ``kf_ids`` (others unset)."""
+        lut = np.empty((max(kf_ids) + 1, 3))
+        lut[kf_ids] = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in kf_ids])
+        return lut

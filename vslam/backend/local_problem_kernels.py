@@ -111,6 +111,25 @@ def normals_and_ranges(X_world, T_world_cam, pt_row, kf_row, good, pt_ids, obs_s
         min_distance[i] = new_max / (ratio if ratio >= 1.0 else 1.0)
 
 
+
+@njit(cache=True, nogil=True)
+def unit_rays(position, pt, centre, kf, ray):  # pragma: no cover - compiled
+    """Per observation ``m`` the unit viewing ray ``(position[pt[m]] - centre[kf[m]]) / max(|.|, 1e-12)``
+    into ``ray (M, 3)``: the gathers, ``row_norms`` (``sqrt(x x + y y + z z)``) and the division of
+    :func:`vslam.backend.local_problem.max_parallax_deg` in one pass, the same operations."""
+    for m in range(pt.shape[0]):
+        p = pt[m]
+        k = kf[m]
+        x = position[p, 0] - centre[k, 0]
+        y = position[p, 1] - centre[k, 1]
+        z = position[p, 2] - centre[k, 2]
+        d = np.sqrt(x * x + y * y + z * z)
+        s = d if not d < 1e-12 else 1e-12
+        ray[m, 0] = x / s
+        ray[m, 1] = y / s
+        ray[m, 2] = z / s
+
+
 @njit(cache=True, nogil=True)
 def scatter_min(out, index, values):  # pragma: no cover - compiled
     """``np.minimum.at(out, index, values)``: ``out[index[m]] = minimum(out[index[m]], values[m])`` in
@@ -129,6 +148,7 @@ def warm() -> None:
     i0 = np.zeros(1, np.int64)
     unit_ray_sums(np.ones((1, 3)), np.eye(4)[None].copy(), i0, i0, np.zeros((1, 3)), np.empty(1))
     scatter_min(np.ones(1), i0, np.zeros(1))
+    unit_rays(np.ones((1, 3)), i0, np.zeros((1, 3)), i0, np.empty((1, 3)))
     for use_depth in (True, False):
         gather_keyframe(np.array([0, -1], np.int64), np.array([True, False]), np.full(2, -1, np.int64), 0,
                         np.ones((2, 2)), np.zeros(2, np.int32), np.ones(2), use_depth, np.empty(2, np.int64),
