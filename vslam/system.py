@@ -347,7 +347,9 @@ class System:
             "depth_bridged": self.tracker.n_depth_bridged,
             "depth_refined": self.tracker.n_depth_refined,
             "stage_ms": stage_ms,
-            "startup_ms": {"kernels": self._kernels_ms},  # loading the compiled kernels (vslam.stream)
+            # loading the compiled kernels (vslam.stream) and the loop closer's pose-graph solver
+            "startup_ms": {"kernels": self._kernels_ms,
+                           **(self.loop_closer.startup_ms if self.loop_closer is not None else {})},
             "sensor": self.sensor,
             "association": self.frontend_config.association,
             "motion": self.frontend_config.motion,

@@ -115,3 +115,59 @@ def test_metis_ordering_gives_the_colamd_solution_on_a_dense_graph():
     ref = np.stack([colamd.atPose3(k).matrix() for k in range(60)])
     assert res.final_error < 0.5 * res.initial_error
     np.testing.assert_allclose(res.T_world_cam, ref, atol=1e-9)
+
+
+def test_nearest_rotations_equal_one_svd_at_a_time_to_the_bit():
+    """The batched SVD of the pose-graph build gives each matrix's ``U @ Vt`` as one SVD at a time did."""
+    from vslam.map.pose_graph import nearest_rotations
+
+    rng = np.random.default_rng(0)
+    M = np.stack([so3_exp(rng.normal(size=3)) for _ in range(300)]) + rng.normal(scale=1e-6, size=(300, 3, 3))
+    got = nearest_rotations(M)
+    ref = []
+    for m in M:
+        U, _, Vt = np.linalg.svd(m)
+        ref.append(U @ Vt)
+    assert all(np.array_equal(g, r) for g, r in zip(got, ref))
+    assert max(np.abs(g - m).max() for g, m in zip(got, M)) > 1e-7  # the inputs were not exact rotations
+
+
+def _build_one_edge_at_a_time(T_world_cam, edges, fixed, sim3, config):
+    """The SE(3) graph as build_pose_graph made it before its batched SVDs and shared noise models
+    (one SVD and one noise model per node / edge): the reference of the test below."""
+    import gtsam
+
+    from vslam.map.pose_graph import _noise
+
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(len(T_world_cam)):
+        U, _, Vt = np.linalg.svd(T_world_cam[k, :3, :3])
+        values.insert(k, gtsam.Pose3(gtsam.Rot3(U @ Vt), T_world_cam[k, :3, 3]))
+    for e in edges:
+        Z = np.asarray(e[2], float)
+        U, _, Vt = np.linalg.svd(Z[:3, :3])
+        graph.add(gtsam.BetweenFactorPose3(int(e[0]), int(e[1]), gtsam.Pose3(gtsam.Rot3(U @ Vt), Z[:3, 3]),
+                                           _noise(e[3] if len(e) == 4 else None, 6, config)))
+    for k in sorted(set(fixed)):
+        graph.add(gtsam.NonlinearEqualityPose3(k, values.atPose3(k)))
+    return graph, values, len(edges)
+
+
+def test_se3_graph_equals_the_one_edge_at_a_time_build_to_the_bit(monkeypatch):
+    """Batched SVDs and shared noise models (default, scalar-weighted; a full information matrix
+    gets its own) solve to the same poses, to the bit, as the per-edge build they replaced."""
+    from vslam.map import pose_graph
+
+    sim = simulate_loop(n_poses=40, noise=1.0, seed=3)
+    T = sim.T_odom
+    rng = np.random.default_rng(1)
+    edges = [(i, i + 1, np.linalg.inv(T[i]) @ T[i + 1]) for i in range(len(T) - 1)]
+    edges += [(i, i + 5, np.linalg.inv(sim.T_true[i]) @ sim.T_true[i + 5], float(rng.uniform(0.5, 2.0)))
+              for i in range(0, len(T) - 5, 3)]
+    edges.append((0, len(T) - 1, np.linalg.inv(sim.T_true[0]) @ sim.T_true[-1], 10.0))
+    edges.append((2, 30, np.linalg.inv(sim.T_true[2]) @ sim.T_true[30], np.diag(rng.uniform(1e2, 1e4, 6))))
+    new = optimize_pose_graph(T, edges, fixed=[0])
+    monkeypatch.setattr(pose_graph, "build_pose_graph", _build_one_edge_at_a_time)
+    ref = optimize_pose_graph(T, edges, fixed=[0])
+    assert np.array_equal(new.S_world_cam, ref.S_world_cam) and new.iterations == ref.iterations
+    assert ate_rmse(new.T_world_cam, sim.T_true) < ate_rmse(T, sim.T_true) / 3

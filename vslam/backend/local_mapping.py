@@ -281,12 +281,14 @@ class LocalMapper:
             LOG.info("map compacted during local BA: result dropped")
             return
         fixed = np.isin(result.kf_ids, ctx.fixed)
+        finite = np.isfinite(result.T_world_cam).all(axis=(1, 2))  # once, not per keyframe
+        newest = self._newest_kf()  # (the keyframes do not change during this loop)
         moved = None
         corrections: dict[int, np.ndarray] = {}
-        for kid, T, f in zip(result.kf_ids.tolist(), result.T_world_cam, fixed):
+        for kid, T, f, ok in zip(result.kf_ids.tolist(), result.T_world_cam, fixed.tolist(), finite.tolist()):
             kf = self.map.keyframes.get(kid)
-            if kf is not None and not f and np.all(np.isfinite(T)):
-                if kid == self._newest_kf():
+            if kf is not None and not f and ok:
+                if kid == newest:
                     moved = (kid, kf.T_world_cam.copy(), T.copy())
                 if ctx.left_out is not None:
                     corrections[kid] = T @ inv_se3(kf.T_world_cam)

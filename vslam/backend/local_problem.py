@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam.backend.config import BackendConfig
-from vslam.backend.local_problem_kernels import member_keypoints
+from vslam.backend.local_problem_kernels import gather_keyframe, scatter_min, unit_rays
 from vslam.backend.problem import BAProblem
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.keyframe import KeyFrame
@@ -44,11 +44,16 @@ def max_parallax_deg(centres: np.ndarray, X_world: np.ndarray, point: np.ndarray
     """
     ray = X_world - centres
     ray /= np.maximum(row_norms(ray), 1e-12)[:, None]
+    return parallax_of_rays(ray, point, n_points)
+
+
+def parallax_of_rays(ray: np.ndarray, point: np.ndarray, n_points: int) -> np.ndarray:
+    """:func:`max_parallax_deg` from the unit rays ``ray (M, 3)`` of the observations."""
     first = np.full(n_points, -1, np.int64)
     first[point[::-1]] = np.arange(len(point))[::-1]  # the last write wins: the first observation
     cos = np.einsum("ij,ij->i", ray, ray[first[point]])
     min_cos = np.ones(n_points)
-    np.minimum.at(min_cos, point, cos)
+    scatter_min(min_cos, np.asarray(point, np.int64), cos)  # np.minimum.at, compiled
     return np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
 
 
@@ -61,6 +66,9 @@ def unique_rows(rows: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
     pos = np.empty(n_rows, np.int64)
     pos[ids] = np.arange(len(ids))
     return ids, pos[rows]
+
+
+_NO_DEPTH = np.empty(0)  # the depth arguments of gather_keyframe without depth (mono, stereo)
 
 
 def segment_keyframes(map_: Map, segment: int) -> list[KeyFrame]:
@@ -79,6 +87,10 @@ class LocalProblemBuilder:
         self.sensor = sensor
         self.config = config
         self.scale_factor = scale_factor
+        # scratch of member_keypoints kept between builds: entries equal to a tag mark the points a
+        # keyframe took; every keyframe of every build gets a new tag, so it never needs a refill
+        self._stamp = np.full(0, -1, np.int64)
+        self._next_tag = 0
 
     def window(self, kf: KeyFrame) -> tuple[list[int], list[int]]:
         """``(optimized keyframe ids, constant keyframe ids)`` of the local BA around ``kf``."""
@@ -128,7 +140,7 @@ class LocalProblemBuilder:
         cols = self._gather(kf_ids, member, n_rows)
         if not cols["kf"]:
             return None
-        c = {k: np.concatenate(v) for k, v in cols.items()}
+        c = {k: v[0] if len(v) == 1 else np.concatenate(v) for k, v in cols.items()}  # (one array: no copy)
         # a point needs two observations, or one with depth / disparity, to be determined
         pt_ids, inv = unique_rows(c["pt"], n_rows)
         n_obs = np.bincount(inv, minlength=len(pt_ids))
@@ -138,8 +150,9 @@ class LocalProblemBuilder:
         if self.sensor != "mono" and self.config.depthless_min_parallax_deg > 0:
             # stereo / RGB-D: a point without any depth or disparity here (far stereo points enter
             # as monocular) whose rays barely diverge has an unobservable depth
-            ok_pt &= has3 | (max_parallax_deg(self._centres(kf_ids, c["kf"]), store.position[c["pt"]], inv, len(pt_ids))
-                             >= self.config.depthless_min_parallax_deg)
+            ray = np.empty((len(inv), 3))  # the unit rays of max_parallax_deg, gathered in one compiled pass
+            unit_rays(store.position, c["pt"], self._centre_lut(kf_ids), c["kf"], ray)
+            ok_pt &= has3 | (parallax_of_rays(ray, inv, len(pt_ids)) >= self.config.depthless_min_parallax_deg)
         left_out = None
         if self.sensor == "mono" and self.config.mono.min_observations > 2:
             # two-view points: the least constrained depth, which BA pushes outwards (~1 % per
@@ -185,31 +198,45 @@ class LocalProblemBuilder:
         Per keyframe only the gathers; the element-wise expressions (sigma, the depth and disparity
         tests) run once on the concatenation (the same values, element by element)."""
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("kf", "pt", "idx", "uv", "sig", "ur", "d")}
-        stamp = np.full(n_rows + 1, -1, np.int64)  # scratch of member_keypoints: the keyframe that took a point
+        if len(self._stamp) < n_rows + 1:  # the store grew: a larger scratch (tags only increase)
+            self._stamp = np.full(max(n_rows + 1, 2 * len(self._stamp)), -1, np.int64)
+        stamp, tag0 = self._stamp, self._next_tag
+        self._next_tag += len(kf_ids)
         stereo, rgbd = self.sensor == "stereo", self.sensor == "rgbd"
-        octave, u_l, u_r, depth, n_sel, kf_used = [], [], [], [], [], []
-        for tag, kid in enumerate(kf_ids):
-            k = self.map.keyframes[kid]
-            pid = k.point_ids
+        kfs = [self.map.keyframes[kid] for kid in kf_ids]
+        if not kfs:
+            return cols
+        total = sum(len(k.point_ids) for k in kfs)
+        # one compiled pass per keyframe (selection and gathers) into buffers for all of them
+        oct_dtype = np.result_type(*[k.octave.dtype for k in kfs])
+        out_pt, out_idx = np.empty(total, np.int64), np.empty(total, np.int64)
+        out_uv, out_oct = np.empty((total, 2)), np.empty(total, oct_dtype)
+        out_d = np.empty(total) if rgbd else _NO_DEPTH
+        u_l, u_r, depth, n_sel, kf_used = [], [], [], [], []
+        n = 0
+        for tag, (kid, k) in enumerate(zip(kf_ids, kfs)):
             # one observation per point and keyframe, the first
-            sel = member_keypoints(np.asarray(pid, np.int64), member, stamp, tag)
-            if len(sel) == 0:
+            n_next = gather_keyframe(np.asarray(k.point_ids, np.int64), member, stamp, tag0 + tag,
+                                     np.asarray(k.uv_undist, float), np.asarray(k.octave, oct_dtype),
+                                     np.asarray(k.depth, float) if rgbd else _NO_DEPTH, rgbd, out_pt, out_idx,
+                                     out_uv, out_oct, out_d, n)
+            if n_next == n:
                 continue
-            n_sel.append(len(sel))
+            n_sel.append(n_next - n)
             kf_used.append(kid)
-            cols["pt"].append(pid[sel])
-            cols["idx"].append(sel)
-            cols["uv"].append(k.uv_undist[sel])
-            octave.append(k.octave[sel])
             if stereo:
                 # keep the measured disparity, expressed at the undistorted left column (NaN: mono rows)
+                sel = out_idx[n:n_next]
                 u_l.append(k.uv[sel, 0])
                 u_r.append(k.u_right[sel] if k.u_right is not None else np.full(len(sel), np.nan))
                 depth.append(k.depth[sel] if k.u_right is not None else np.full(len(sel), np.nan))
-            elif rgbd:
-                depth.append(k.depth[sel])
+            n = n_next
         if not n_sel:
             return cols
+        cols["pt"], cols["idx"], cols["uv"] = [out_pt[:n]], [out_idx[:n]], [out_uv[:n]]
+        octave = [out_oct[:n]]
+        if rgbd:
+            depth = [out_d[:n]]
         cols["kf"] = [np.repeat(np.asarray(kf_used, np.int64), n_sel)]
         cols["sig"] = [np.power(self.scale_factor, np.concatenate(octave).astype(float))]
         nan = np.full(sum(n_sel), np.nan)
@@ -228,9 +255,8 @@ class LocalProblemBuilder:
         cols["ur"], cols["d"] = [ur], [d]
         return cols
 
-    def _centres(self, kf_ids: list[int], obs_kf: np.ndarray) -> np.ndarray:
-        """Camera centre (world) of the keyframe of each observation ``obs_kf (M,)``."""
-        ids = np.asarray(kf_ids, np.int64)
-        order = np.argsort(ids)
-        centres = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in ids])
-        return centres[order[np.searchsorted(ids[order], obs_kf)]]
+    def _centre_lut(self, kf_ids: list[int]) -> np.ndarray:
+        """Camera centres (world) by keyframe id: row ``k`` for each ``k`` of ``kf_ids`` (others unset)."""
+        lut = np.empty((max(kf_ids) + 1, 3))
+        lut[kf_ids] = np.stack([self.map.keyframes[k].T_world_cam[:3, 3] for k in kf_ids])
+        return lut

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam.backend.local_problem import row_norms
-from vslam.backend.local_problem_kernels import unit_ray_sums
+from vslam.backend.local_problem_kernels import normals_and_ranges
 from vslam.backend.problem import BAProblem, BAResult
 from vslam.geometry.camera import PinholeCamera
 from vslam.map.map import Map
@@ -73,25 +72,13 @@ class PointWriteback:
         store = self.map.points
         pt_row = problem.pt_index(problem.obs_pt)
         kf_row = problem.kf_index(problem.obs_kf)
-        # per observation the ray length, per point the sum of its unit rays in observation order (one
-        # compiled loop; the arithmetic of ray / max(|ray|, 1e-12) summed by np.bincount)
-        acc = np.zeros((problem.num_points, 3))
-        dist = np.empty(len(pt_row))
-        unit_ray_sums(np.ascontiguousarray(result.X_world, dtype=float),
-                      np.ascontiguousarray(result.T_world_cam, dtype=float), pt_row, kf_row, acc, dist)
-        norm = row_norms(acc)
-        ok = good & (norm > 1e-9)
-        ids = problem.pt_ids[ok]
-        store.normal[ids] = acc[ok] / norm[ok, None]
-        # distance range from the last observation of each point (scale-invariance, ORB-SLAM sec. III-C)
-        last = np.full(problem.num_points, -1, np.int64)
-        last[pt_row] = np.arange(len(pt_row))
-        has = ok & (last >= 0)
-        o = last[has]
-        ids = problem.pt_ids[has]
-        old_max, old_min = store.max_distance[ids], store.min_distance[ids]
-        ratio = np.where((old_min > 0) & np.isfinite(old_max), old_max / np.maximum(old_min, 1e-12), 1.0)
-        new_max = dist[o] * problem.obs_sigma[o]
-        store.max_distance[ids] = new_max
-        store.min_distance[ids] = new_max / np.maximum(ratio, 1.0)
-
+        # one compiled pass (the arithmetic of the NumPy expressions it replaced, to the bit): per
+        # observation the ray and its length, per point the sum of its unit rays in observation order
+        # (as np.bincount sums them), the normal (their mean direction) and, from the last observation
+        # of each point, the distance range (scale-invariance, ORB-SLAM sec. III-C)
+        P = problem.num_points
+        normals_and_ranges(np.ascontiguousarray(result.X_world, dtype=float),
+                           np.ascontiguousarray(result.T_world_cam, dtype=float), pt_row, kf_row,
+                           np.ascontiguousarray(good, dtype=np.bool_), problem.pt_ids, problem.obs_sigma,
+                           store.normal, store.max_distance, store.min_distance, np.zeros((P, 3)),
+                           np.empty(len(pt_row)), np.empty(P, np.int64))
