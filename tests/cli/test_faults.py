@@ -326,9 +326,12 @@ def _alive(pid: int) -> bool:
 
 
 def _start_slow(seq: Path, out: Path):
+    # the run starts with SIGINT at its default disposition whatever this process inherited (Python
+    # leaves an inherited SIG_IGN in place, as under `nohup` or a non-interactive shell's `&`)
     proc = subprocess.Popen([sys.executable, "-c", SLOW_RUN, "run", str(seq), "-o", str(out), "--no-progress",
                              "--sensor", "rgbd"], cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 60
     while time.time() < deadline:
         traj = out / "trajectory.txt"
