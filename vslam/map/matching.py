@@ -204,28 +204,3 @@ def brute_force_match(
 
     i1, i2, _ = match_descriptors(desc1, desc2, binary=binary, ratio=ratio, mutual=True, max_distance=max_distance)
     return np.asarray(i1, dtype=np.int64), np.asarray(i2, dtype=np.int64)
-
-
-def _brute_force_match_cv2(desc1, desc2, binary, ratio, max_distance):  # pragma: no cover - reference only
-    import cv2
-
-    norm = cv2.NORM_HAMMING if binary else cv2.NORM_L2
-    bf = cv2.BFMatcher(norm)
-    d1 = desc1 if binary else desc1.astype(np.float32)
-    d2 = desc2 if binary else desc2.astype(np.float32)
-    knn = bf.knnMatch(d1, d2, k=2)
-    arr = np.array([(m[0].queryIdx, m[0].trainIdx, m[0].distance, m[1].distance) for m in knn if len(m) == 2])
-    if len(arr) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    ok = arr[:, 2] < ratio * arr[:, 3]
-    if max_distance is not None:
-        ok &= arr[:, 2] <= max_distance
-    i1 = arr[ok, 0].astype(np.int64)
-    i2 = arr[ok, 1].astype(np.int64)
-    # mutual: best backward match of i2 must be i1
-    back = bf.match(d2, d1)
-    back_idx = np.full(len(desc2), -1, dtype=np.int64)
-    for m in back:  # one call per frame pair; small Python loop over OpenCV result objects
-        back_idx[m.queryIdx] = m.trainIdx
-    keep = back_idx[i2] == i1
-    return i1[keep], i2[keep]
