@@ -119,8 +119,9 @@ def run_sequence(
         prefetch_depth: frames decoded ahead in a background thread while the current one is
             tracked (:func:`vslam.datasets.prefetch.prefetch`; bounded, so memory stays flat);
             that thread also runs the tracker's ``prepare(frame)`` when it has one (grayscale and
-            feature detection), on the frames it decoded while the tracker was busy (so the work
-            balances between the threads). 0 decodes in the tracking thread.
+            feature detection), on the frames it decoded while the tracker had enough queued to
+            stay busy (:data:`~vslam.datasets.prefetch.BALANCE_LEAD` frames; so the work balances
+            between the threads). 0 decodes in the tracking thread.
         prefetch_mode: ``thread`` (above), ``process`` (``frames`` must be a
             :class:`~vslam.datasets.prefetch.FrameRange`: reading and ``prepare`` then run in a
             child process, :func:`~vslam.datasets.prefetch.prefetch_process`, free of the GIL;
