@@ -65,7 +65,8 @@ def prefetch(items: Iterable[T], depth: int = 4, prepare: Callable[[T], object] 
     like the reader's own. With ``balance`` it is skipped unless at least :data:`BALANCE_LEAD`
     items already wait in the queue (the consumer is, or soon will be, waiting: hand the item
     over at once and let the consumer do that work), so the work splits between the two threads
-    by itself whichever is slower; otherwise every item is prepared. ``depth <= 0`` returns the plain iterator (no thread, no ``prepare``).
+    by itself whichever is slower; otherwise every item is prepared. ``depth <= 0`` returns the
+    plain iterator (no thread, no ``prepare``).
     """
     if depth <= 0:
         yield from items
