@@ -7,7 +7,13 @@ BASE_DEBS := libgl1 libgomp1
 TEST_DEBS := $(BASE_DEBS) libusb-1.0-0 chromium
 TEST_EXTRAS := test,dense,viz,ray,ros
 
-.PHONY: demo test install install-test clean
+# The portable check (issue 29): the compiled-kernel tests, the pinned figures and the determinism
+# test again on a simulated second machine: another OpenBLAS kernel, numba code for a generic x86-64
+# (no AVX2/FMA; its own cache), one OpenMP thread. `make test` runs it after the whole suite.
+PORTABLE_ENV := OPENBLAS_CORETYPE=SandyBridge NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(CURDIR)/.numba-generic OMP_NUM_THREADS=1
+PORTABLE_TESTS := $(sort $(wildcard tests/*/test_*kernels*.py)) tests/test_pinned_figures.py tests/test_determinism.py
+
+.PHONY: demo test test-suite test-portable install install-test clean
 
 $(VENV)/.installed: pyproject.toml constraints.txt scripts/bootstrap.sh
 	bash scripts/bootstrap.sh "$(PYTHON)" "$(VENV)" "" $(BASE_DEBS)
@@ -23,8 +29,13 @@ install-test: $(VENV)/.installed-test
 demo: $(VENV)/.installed
 	$(VENV)/bin/vslam demo --output demo_output
 
-test: $(VENV)/.installed-test
+test: test-suite test-portable
+
+test-suite: $(VENV)/.installed-test
 	$(VENV)/bin/python -m pytest -q --durations=10
 
+test-portable: $(VENV)/.installed-test
+	$(PORTABLE_ENV) $(VENV)/bin/python -m pytest -q -p no:cacheprovider $(PORTABLE_TESTS)
+
 clean:
-	rm -rf $(VENV) demo_output
+	rm -rf $(VENV) demo_output .numba-generic

@@ -195,6 +195,9 @@ def test_subprocess_protocol_with_a_stand_in_interpreter(tmp_path, shared_data):
     assert child["vocabulary"] == str(voc.resolve()) and child["pace"] == "mono"
     comp = baseline_comparison(summarize(res.rows))
     assert comp[0]["ate_ratio"] == pytest.approx(0.005 / base["ate_rmse"]) and comp[0]["fps_ratio"] == pytest.approx(5 / 9)
+    # on the 9 frames both tracked, from the two trajectory files: ours is the ground truth itself
+    assert comp[0]["common_frames"] == 9 and comp[0]["ate_common_vslam"] < 1e-6
+    assert comp[0]["ate_common_baseline"] == pytest.approx(base["ate_rmse"], rel=1e-6)
     md = (tmp_path / "bench" / "results.md").read_text()
     assert "## vslam vs baseline" in md and "| desk | rgbd | orbslam3 | 0.0050 | " in md and "| 5.0 | 9.0 | 0.56 |" in md
 
@@ -221,9 +224,34 @@ def test_comparison_table_marks_paced_baselines():
     comp = baseline_comparison(summarize(rows))
     assert len(comp) == 1 and comp[0]["ate_ratio"] == pytest.approx(1.5) and comp[0]["fps_ratio"] == pytest.approx(0.4)
     assert comp[0]["tracked_baseline"] == pytest.approx(0.5)
-    assert "| k07 | mono | orbslam3 | 0.3000 | 0.2000 | 1.50 | 4.0 | 10.0 (paced) | 0.40 | 100 % | 50 % |" \
+    assert "| k07 | mono | orbslam3 | 0.3000 | 0.2000 | 1.50 | - / - | - | - | 4.0 | 10.0 (paced) | 0.40 | 100 % | 50 % |" \
         in results_markdown(rows)
+    rows[0].update(ate_common=0.12, common_frames=5)
+    rows[1].update(ate_common=0.2, common_frames=5)
+    assert "| 1.50 | 0.1200 / 0.2000 | 0.60 | 5 | 4.0 |" in results_markdown(rows)
     assert "vslam vs baseline" not in results_markdown(rows[2:])
+
+
+def test_common_frame_ate_scores_both_on_the_frames_both_tracked():
+    """A baseline that tracks only the easy first half: on all frames ours looks worse (its error
+    sits in the second half), on the frames both tracked ours is compared fairly."""
+    from vslam.bench.common_frames import common_frame_ate
+    from vslam.trajectory import Trajectory
+
+    n = 20
+    t = np.arange(n) * 0.1
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.linspace(0, 2, n)
+    T[:, 1, 3] = np.sin(t)
+    gt = Trajectory(t, T)
+    ours = T.copy()
+    ours[:, 2, 3] += np.where(np.arange(n) % 2, 0.002, -0.002)  # +-2 mm everywhere
+    ours[12:, 2, 3] += np.linspace(0.0, 0.3, n - 12)  # and a drift in the hard second half
+    theirs = T[:10].copy()
+    theirs[:, 2, 3] += np.where(np.arange(10) % 2, 0.005, -0.005)  # +-5 mm on the frames it kept
+    a, b, k = common_frame_ate(Trajectory(t, ours), Trajectory(t[:10], theirs), gt, "se3")
+    assert k == 10
+    assert a == pytest.approx(0.002, rel=0.05) and b == pytest.approx(0.005, rel=0.05)
 
 
 @pytest.mark.slow

@@ -185,7 +185,10 @@ def execute_job(job: Job, runner: Runner | None = None, log_file: bool = True, o
         raise
     except BaseException as exc:  # noqa: BLE001 - a failing run must not stop the benchmark
         error = f"{type(exc).__name__}: {exc}"
-        log.error("%s failed: %s\n%s", job.label, error, traceback.format_exc())
+        # a fault of the input or the machine (VslamError: bad data, a full disk) is its one line; a bug
+        # keeps its traceback
+        tb = "" if isinstance(exc, VslamError) else "\n" + traceback.format_exc()
+        log.error("%s failed: %s%s", job.label, error, tb)
         stats = _load_stats(out)  # a crashed run keeps its partial stats (runner writes them)
     elapsed = time.perf_counter() - t0
     rate = stats.get("frame_rate") or sensor_frame_rate(run, stats.get("sensor", run.sensor))
@@ -407,6 +410,10 @@ def run_benchmark(
 
         rows += executor.map(group_jobs, group_runner, progress)
         offset += len(group_jobs)
+    if baselines:
+        from vslam.bench.common_frames import add_common_frame_ate
+
+        add_common_frame_ate(rows, output)
     meta = {
         "spec": str(spec.source) if spec.source else None,
         "description": spec.description,

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from vslam.errors import VslamError
+from vslam.outputs import atomic_write_bytes, atomic_write_text
 from vslam.textfile import open_text
 
 #: metrics summarized per run: (row key, column title, number format)
@@ -64,6 +65,8 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
         tracked = [r["tracked"] / r["frames"] for r in ok if r.get("frames") and r.get("tracked") is not None]
         metrics = {key: [r.get(key) for r in ok] for key, _, _ in METRICS}
         metrics["tracked_fraction"] = tracked
+        metrics["ate_common"] = [r.get("ate_common") for r in ok]  # vs a baseline, frames both tracked
+        metrics["common_frames"] = [r.get("common_frames") for r in ok]
         for key, values in metrics.items():
             v = _finite(values)
             s[key] = None if len(v) == 0 else {
@@ -126,6 +129,11 @@ def baseline_comparison(summary: Sequence[dict]) -> list[dict]:
             "fps_ratio": _ratio(ours.get("fps"), base.get("fps")),
             "tracked_vslam": med(ours, "tracked_fraction"), "tracked_baseline": med(base, "tracked_fraction"),
             "baseline_paced": bool(base.get("paced")),
+            # on the frames both tracked (vslam.bench.common_frames), medians over the repeats
+            "ate_common_vslam": med(ours, "ate_common"),
+            "ate_common_baseline": med(base, "ate_common"),
+            "ate_common_ratio": _ratio(ours.get("ate_common"), base.get("ate_common")),
+            "common_frames": med(base, "common_frames"),
         })
     return out
 
@@ -138,13 +146,17 @@ def comparison_markdown(comparison: Sequence[dict]) -> str:
     def num(v: float | None, fmt: str) -> str:
         return "-" if v is None else fmt.format(v)
 
-    lines = ["| run | sensor | baseline | ATE vslam [m] | ATE baseline [m] | ATE ratio | frames/s vslam | "
-             "frames/s baseline | speed ratio | tracked vslam | tracked baseline |", "|" + "---|" * 11]
+    lines = ["| run | sensor | baseline | ATE vslam [m] | ATE baseline [m] | ATE ratio | ATE both tracked: vslam / "
+             "baseline [m] | ratio | frames both tracked | frames/s vslam | frames/s baseline | speed ratio | "
+             "tracked vslam | tracked baseline |", "|" + "---|" * 14]
     for c in comparison:
         fps_b = num(c["fps_baseline"], "{:.1f}") + (" (paced)" if c["baseline_paced"] else "")
         lines.append("| " + " | ".join([
             c["run"], c.get("sensor") or "-", c["system"], num(c["ate_vslam"], "{:.4f}"),
-            num(c["ate_baseline"], "{:.4f}"), num(c["ate_ratio"], "{:.2f}"), num(c["fps_vslam"], "{:.1f}"), fps_b,
+            num(c["ate_baseline"], "{:.4f}"), num(c["ate_ratio"], "{:.2f}"),
+            f'{num(c.get("ate_common_vslam"), "{:.4f}")} / {num(c.get("ate_common_baseline"), "{:.4f}")}',
+            num(c.get("ate_common_ratio"), "{:.2f}"), num(c.get("common_frames"), "{:.0f}"),
+            num(c["fps_vslam"], "{:.1f}"), fps_b,
             num(c["fps_ratio"], "{:.2f}"),
             num(None if c["tracked_vslam"] is None else 100 * c["tracked_vslam"], "{:.0f} %"),
             num(None if c["tracked_baseline"] is None else 100 * c["tracked_baseline"], "{:.0f} %")]) + " |")
@@ -179,7 +191,9 @@ def results_markdown(rows: Sequence[dict], meta: dict | None = None) -> str:
                      "accurate); speed ratio = vslam frames/s / baseline frames/s (> 1: vslam faster). "
                      "A `(paced)` baseline was fed at the sensor rate (times its `pace_rate`, see its "
                      "stats.json), so its frames/s is capped by that rate and the speed ratio is an upper "
-                     "bound (vslam may be relatively slower than shown).\n")
+                     "bound (vslam may be relatively slower than shown). `ATE both tracked`: each system "
+                     "scored on the frames both have a pose for (same repeat, own alignment), so a system "
+                     "that drops hard frames is not scored on its easy ones only.\n")
         parts.append(comparison)
     failed = [r for r in rows if r.get("error")]
     if failed:
@@ -234,14 +248,12 @@ def write_results(rows: Sequence[dict], output: str | Path, meta: dict | None = 
     comparison = baseline_comparison(summary)
     if comparison:
         data["baseline_comparison"] = comparison
-    files["json"] = output / "results.json"
-    files["json"].write_text(json.dumps(data, indent=2, default=_json_default))
-    files["md"] = output / "results.md"
-    files["md"].write_text(results_markdown(rows, meta))
+    # each file atomically: a full disk leaves the previous results whole, never a truncated file
+    files["json"] = atomic_write_text(output / "results.json", json.dumps(data, indent=2, default=_json_default))
+    files["md"] = atomic_write_text(output / "results.md", results_markdown(rows, meta))
     if plots:
         for key, label, fname in PLOTS:
-            files[key] = output / fname
-            files[key].write_bytes(plot_per_run(rows, key, label))
+            files[key] = atomic_write_bytes(output / fname, plot_per_run(rows, key, label))
     return files
 
 
