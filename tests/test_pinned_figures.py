@@ -1,14 +1,24 @@
-"""Every figure the README publishes, pinned from both sides near its measured value.
+"""Every sensor on every shared sequence, pinned from both sides in bands that hold across machines.
 
-The default pipeline is deterministic (bit-identical runs), so each figure sits in a band of
-about +-1.5 % around the value measured when it was pinned: an ATE that gets worse *or* better,
-a frame that stops being tracked, a loop that closes with other keyframes or another inlier
-count, fails here. Re-pin (and update README.md / benchmarks/RESULTS.md) only for a change that
-is meant to move them. One run per README "Results" row, as ``vslam bench benchmarks/all.yaml``
-runs it (:func:`vslam.api.run_path`, default configuration), plus issue 7's global localization
-on 7-Scenes (map of frames 0-599, cold start on 600-999).
+One run per row, as ``vslam bench benchmarks/all.yaml`` runs it (:func:`vslam.api.run_path`,
+default configuration), plus issue 7's global localization on 7-Scenes (map of frames 0-599, cold
+start on 600-999). A change that moves any row outside its band fails here, whatever README shows:
+an ATE that gets worse *or* better, frames that stop being tracked, a loop that closes with other
+keyframes or another inlier count.
+
+How the bands were set (issue 29): every row was run under four CPU profiles of this machine (an
+AMD EPYC with AVX-512): the default (OpenBLAS picks its SkylakeX kernels), ``OPENBLAS_CORETYPE=Haswell``,
+``OPENBLAS_CORETYPE=SandyBridge NUMBA_CPU_NAME=generic OMP_NUM_THREADS=1`` (another BLAS kernel and
+numba code without AVX2/FMA) and ``OPENBLAS_CORETYPE=Prescott OMP_NUM_THREADS=1
+OPENBLAS_NUM_THREADS=1``. ``SPREAD`` below is the range seen over those runs (2026-11-27); each band
+is that range widened by ``MARGIN`` (3 % of the value each side) and, for the rows whose spread
+shows they react to rounding (the localization, where the profiles differ by two frames and 8 % of
+ATE), by the spread once more. Counts get an absolute slack of a few frames where they moved, none
+where every profile agreed and a single frame more would mean another trajectory.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import pytest
 
@@ -16,60 +26,95 @@ from vslam.api import run_path
 
 pytestmark = pytest.mark.shared
 
-
-def _band(value: float, pinned: float, rel: float = 0.015) -> bool:
-    return pinned * (1 - rel) <= value <= pinned * (1 + rel)
+MARGIN = 0.03  # relative, each side of the measured spread
 
 
-# README "Results": run name -> (data folder, sensor, frames, ATE RMSE [m], loops [query, match, inliers])
-ROWS = {
-    # measured 0.043255; the loop: keyframe 937 -> 248 (frames), 162 inliers
-    "7scenes-redkitchen-rgbd": ("7scenes_redkitchen", "rgbd", 1000, 0.04326, [[937, 248, 162]]),
-    "tum-fr1-desk-9-rgbd": ("tum_rgbd_freiburg1_desk_9frames", "rgbd", 9, 0.004130, []),  # 0.0041296
-    # 0.050001 (0.055783 before stereo matching along the row, frontend.depth.stereo_flow=row, window 9)
-    "kitti06-stereo": ("kitti_odometry/sequences/06", "stereo", 51, 0.05000, []),
-    "kitti07-mono": ("kitti_odometry/sequences/07", "mono", 160, 0.3263, []),  # 0.326273, scale 9.9283
-    # 0.00069020 (0.00086288 before the row stereo matcher: 94 % of keypoints matched instead of 30 %)
-    "euroc-v101-40-stereo": ("euroc_V1_01_easy_40frames", "stereo", 40, 0.000690, []),
+@dataclass(frozen=True)
+class Pin:
+    folder: str
+    sensor: str
+    frames: int
+    spread: tuple[float, float]  # ATE RMSE [m] over the four profiles (min, max)
+    scale: tuple[float, float] | None = None  # monocular Sim(3) scale over the profiles
+    loops: tuple[tuple[int, int, int], ...] = ()  # (query frame, matched frame, inliers) as measured
+    min_tracked: int | None = None  # default: every frame
+
+    def ate_band(self) -> tuple[float, float]:
+        lo, hi = self.spread
+        return lo * (1 - MARGIN) - (hi - lo), hi * (1 + MARGIN) + (hi - lo)
+
+
+# Measured values (default profile) in the comments; SPREAD over the four profiles.
+PINS = {
+    # 0.043255; loop keyframe 937 -> 248, 162 inliers
+    "7scenes-redkitchen-rgbd": Pin("7scenes_redkitchen", "rgbd", 1000, (0.043255, 0.043255), loops=((937, 248, 162),)),
+    # 0.044825, scale 1.9484; loop 944 -> 251, 287 inliers. The same row from start frames 3, 7, 12,
+    # 20 gives 0.0360-0.0413 (benchmarks/RESULTS.md): a monocular run's ATE is that sensitive to its start.
+    "7scenes-redkitchen-mono": Pin("7scenes_redkitchen", "mono", 1000, (0.044825, 0.044825), scale=(1.94841, 1.94842),
+                                   loops=((944, 251, 287),)),
+    "tum-fr1-desk-9-rgbd": Pin("tum_rgbd_freiburg1_desk_9frames", "rgbd", 9, (0.0041296, 0.0041296)),
+    # 0.050001 with the float64 disparity refinement (0.050001 with the float32 one it replaced)
+    "kitti06-stereo": Pin("kitti_odometry/sequences/06", "stereo", 51, (0.050001, 0.050001)),
+    # 0.326273, scale 9.9283 (9.92819 under Haswell)
+    "kitti07-mono": Pin("kitti_odometry/sequences/07", "mono", 160, (0.326273, 0.326273), scale=(9.92819, 9.92826)),
+    "euroc-v101-40-stereo": Pin("euroc_V1_01_easy_40frames", "stereo", 40, (0.00069020, 0.00069020)),
+    # EuRoC MH_01, 80 frames of hand-held motion (issue 28's clip)
+    "euroc-mh01-80-stereo": Pin("euroc_mh01_vi_80", "stereo", 80, (0.0031717, 0.0031717)),
+    "euroc-mh01-80-mono": Pin("euroc_mh01_vi_80", "mono", 80, (0.0026029, 0.0026029), scale=(0.58613, 0.58613)),
 }
+LOOP_FRAMES = 3  # a loop's query / matched frame may move this many frames
+LOOP_INLIERS = 0.15  # and its inlier count this share (an unrefined loop's count is off by 70 %)
 
 
-@pytest.fixture(scope="module", params=sorted(ROWS))
-def readme_row(request, shared_data, tmp_path_factory):
+def _in(value: float, band: tuple[float, float]) -> bool:
+    return band[0] <= value <= band[1]
+
+
+def _check_loops(got: list, pinned: tuple[tuple[int, int, int], ...]) -> None:
+    assert len(got) == len(pinned), (got, pinned)
+    for (q, m, n), (q0, m0, n0) in zip(got, pinned):
+        assert abs(q - q0) <= LOOP_FRAMES and abs(m - m0) <= LOOP_FRAMES, (got, pinned)
+        assert abs(n - n0) <= LOOP_INLIERS * n0, (got, pinned)
+
+
+@pytest.fixture(scope="module", params=sorted(PINS))
+def pinned_row(request, shared_data, tmp_path_factory):
     name = request.param
-    folder, sensor, frames, ate, loops = ROWS[name]
+    pin = PINS[name]
     out = tmp_path_factory.mktemp(name)
-    result = run_path(shared_data / folder, out, sensor=sensor, prefetch="none")
+    result = run_path(shared_data / pin.folder, out, sensor=pin.sensor, prefetch="none")
     return name, result.stats
 
 
-def test_readme_row(readme_row):
-    name, stats = readme_row
-    folder, sensor, frames, ate, loops = ROWS[name]
-    # tracked 100 %: every frame has a pose and is matched to the ground truth
-    assert stats["frames"] == frames and stats["tracked"] == frames and stats["lost"] == 0, stats
-    assert stats["matched_poses"] == frames
-    if sensor == "mono":  # Sim(3) alignment: the monocular map's scale, pinned too
-        assert _band(stats["scale"], 9.9283, 0.005), stats["scale"]
+def test_pinned_row(pinned_row):
+    name, stats = pinned_row
+    pin = PINS[name]
+    min_tracked = pin.frames if pin.min_tracked is None else pin.min_tracked
+    assert stats["frames"] == pin.frames and stats["tracked"] >= min_tracked, stats
+    assert stats["matched_poses"] == stats["tracked"]
+    if pin.scale is not None:  # Sim(3) alignment: the monocular map's scale, pinned too
+        lo, hi = pin.scale
+        assert _in(stats["scale"], (lo * (1 - MARGIN), hi * (1 + MARGIN))), stats["scale"]
     else:  # depth sensors are evaluated with SE(3) (no scale absorbs part of the error)
         assert stats["scale"] == 1.0
-    assert _band(stats["ate_rmse"], ate), (name, stats["ate_rmse"], ate)
-    if loops is not None:
-        assert stats["loops"] == loops, (name, stats["loops"])
+    assert _in(stats["ate_rmse"], pin.ate_band()), (name, stats["ate_rmse"], pin.ate_band())
+    _check_loops(stats["loops"], pin.loops)
 
 
 def test_readme_cabinet_row(cabinet_run):
     """README row tum-fr3-cabinet-kf58-rgbd (the session's cabinet run, tests/conftest.py): all 58
-    frames, ATE 0.0322 (measured 0.032233), the circle closed by exactly one loop, keyframe 57 ->
-    2 with 10 refined inliers (17 if unrefined RANSAC matches were counted)."""
+    frames, ATE 0.032233 on every profile, the circle closed by one loop, keyframe 57 -> 2 with 10
+    refined inliers on every profile (17 if unrefined RANSAC matches were counted: outside the band)."""
     from vslam.eval.evaluate import evaluate_trajectories
 
     ds, system, results = cabinet_run
     assert sum(r.T_world_cam is not None for r in results) == 58
     res = evaluate_trajectories(system.trajectory(), ds.ground_truth())
     assert res.matched_poses == 58
-    assert _band(res.ate.rmse, 0.03223), res.ate.rmse
-    assert system.stats()["loops"] == [[57, 2, 10]]
+    assert _in(res.ate.rmse, Pin("", "rgbd", 58, (0.032233, 0.032233)).ate_band()), res.ate.rmse
+    loops = system.stats()["loops"]
+    _check_loops(loops, ((57, 2, 10),))
+    assert loops[0][2] <= 12  # 10 measured; the unrefined count (17) must fail whatever the band
 
 
 @pytest.fixture(scope="module")
@@ -84,23 +129,26 @@ def sevenscenes_localization(shared_data, tmp_path_factory):
     return localize_path(root / "map", data, root / "loc", start_frame=600, max_frames=400).stats
 
 
+# Localization of 7-Scenes 600-999 in the map of 0-599 over the profiles: localized 367-369 (tracked
+# 353-354, relocalized 14-15, lost 31-33), implausible steps 9-11, ATE 0.04570-0.04946 m (default
+# 368 / 0.04946, Haswell 367 / 0.04648, SandyBridge + generic numba 369 / 0.04703, Prescott 368 /
+# 0.04570). Its counts react to rounding: one pose that PnP accepts or not changes what follows.
+LOC_LOCALIZED = (365, 371)  # measured 367-369, +-2 frames
+LOC_ATE = Pin("", "rgbd", 400, (0.04570, 0.04946)).ate_band()
+
+
 def test_7scenes_localization(sevenscenes_localization):
-    """Measured 368/400 localized (354 tracked, 14 relocalized), 32 lost, ATE 0.04946 m. History:
-    367/400 (353, 14, 33 lost), 0.04961 before solve_pnp's LM became our own compiled one instead of
-    ``cv2.solvePnPRefineLM`` (the same minimum to ~1e-9: the benchmark rows are the same files);
-    369/400 (355, 14, 31 lost), 0.04550 before pose refinement stepped with ``lie.so3_exp`` instead of
-    ``cv2.Rodrigues`` (the same formula, other rounding: the benchmark rows are the same files, but
-    this run moves by two frames and 9 % of ATE: its figures are that sensitive to rounding);
-    366/400 (352, 14, 34 lost, 10 implausible steps), 0.04530 before issue 15's per-point Schur sums
-    (the map of frames 0-599 moved by 1e-14 m, rounding only, and the counts with it);
-    386/400, 0.047 when issue 7 closed; 350/400, 0.0512 after later map changes (the relocalizer's
-    RANSAC pose too far off for its guided matching; poses the local map did not confirm were
-    reported). Issue 16 asks for >= 360 and < 0.05; the pins below are tighter. Disabling the
-    implausible-step check moves every one of these counts."""
+    """History of the default profile's figures: 368/400 (354 tracked, 14 relocalized, 32 lost),
+    ATE 0.04946 m; 367/400, 0.04961 before solve_pnp's LM became our own compiled one; 369/400,
+    0.04550 before pose refinement stepped with ``lie.so3_exp``; 366/400, 0.04530 before issue 15's
+    per-point Schur sums; 386/400, 0.047 when issue 7 closed. Issue 16 asks for >= 360 and < 0.05.
+    Disabling the implausible-step check sends the ATE and the relocalizations out of their bands
+    (measured 0.0662 m, 8 relocalizations, 372 localized)."""
     s = sevenscenes_localization
     assert s["frames"] == 400
-    assert (s["localized"], s["tracked"], s["relocalizations"], s["lost"]) == (368, 354, 14, 32), s
-    assert (s["implausible_steps"], s["track_failures"]) == (9, 13), s
-    assert s["localized"] >= 360 and s["ate_rmse"] < 0.05
-    assert _band(s["ate_rmse"], 0.04946), s["ate_rmse"]
+    assert _in(s["localized"], LOC_LOCALIZED), s
+    assert s["localized"] == s["tracked"] + s["relocalizations"] and s["lost"] == 400 - s["localized"], s
+    assert 12 <= s["relocalizations"] <= 17, s  # 14-15
+    assert s["localized"] >= 360  # issue 16's goal; its ATE < 0.05 held on every profile (max 0.04946)
+    assert _in(s["ate_rmse"], LOC_ATE), (s["ate_rmse"], LOC_ATE)
     assert s["matched_poses"] == s["localized"]

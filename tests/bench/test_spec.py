@@ -108,6 +108,9 @@ def test_shipped_specs_cover_every_shared_sequence(shared_data, monkeypatch):
         ("7scenes_redkitchen", "rgbd"), ("tum_fr3_cabinet_keyframes58", "rgbd"),
         ("tum_rgbd_freiburg1_desk_9frames", "rgbd"), ("kitti_odometry/sequences/06", "stereo"),
         ("kitti_odometry/sequences/07", "mono"), ("euroc_V1_01_easy_40frames", "stereo"),
+        ("7scenes_redkitchen", "mono"), ("euroc_mh01_vi_80", "stereo"), ("euroc_mh01_vi_80", "mono"),
     }
+    starts = load_spec(REPO / "benchmarks" / "mono_starts.yaml", check_paths=True)
+    assert {r.sensor for r in starts.runs} == {"mono"} and len(starts.runs) == 10 and starts.runs[1].start_frame == 3
     smoke = load_spec(REPO / "benchmarks" / "smoke.yaml", check_paths=True)
     assert 1 <= len(smoke.runs) <= 4 and smoke.n_jobs <= 8

@@ -152,8 +152,10 @@ def test_slow_consumer_gets_the_newest_frame_and_drops_count(monkeypatch, camera
         assert np.array_equal(frame.image, images[frame.index])
         time.sleep(0.025)
     assert counts == {"captured_frames": N, "dropped_frames": N - len(seen)}
-    # the newest frame always arrives; under CPU load the first ones may already be replaced
-    assert 2 <= len(seen) <= 20 and seen[0] <= 5 and seen[-1] == N - 1
+    # the newest frame always arrives; under CPU load the first ones may already be replaced (the
+    # first frame seen was 0-5 on an idle machine, 7 with the test suite and three other jobs on
+    # two cores): the first half of the stream must still reach the consumer
+    assert 2 <= len(seen) <= 20 and seen[0] <= N // 2 and seen[-1] == N - 1
     assert np.all(np.diff(seen) >= 1) and max(np.diff(seen)) >= 3
 
 
