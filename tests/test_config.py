@@ -64,3 +64,39 @@ def test_bad_yaml_file(tmp_path):
         load_config(Root, p)
     with pytest.raises(ConfigError, match="not found"):
         load_config(Root, tmp_path / "missing.yaml")
+
+
+def test_dotted_keys_in_a_config_file(tmp_path, capsys):
+    """`features.n_features: 1000` (the key form `vslam config` prints) is the nested key; the two
+    forms mix; a setting given both ways, an unknown dotted key and `key = value` lines are refused
+    in one line."""
+    from vslam.cli import main
+    from vslam.config import Config
+
+    p = tmp_path / "c.yaml"
+    p.write_text("features.n_features: 1000\nfrontend:\n  motion: 3d3d\nfrontend.tracking.max_frames_to_place: 7\n"
+                 "loop.enabled: false\n")
+    cfg = load_config(Config, p)
+    nested = tmp_path / "n.yaml"
+    nested.write_text("features: {n_features: 1000}\nfrontend: {motion: 3d3d, tracking: {max_frames_to_place: 7}}\n"
+                      "loop: {enabled: false}\n")
+    assert cfg == load_config(Config, nested) != Config()
+    assert (cfg.features.n_features, cfg.frontend.motion, cfg.frontend.tracking.max_frames_to_place) == (1000, "3d3d", 7)
+    assert load_config(Root, None, []) == Root()
+    p.write_text("inner.n: 4\nseed: 2\n")
+    assert load_config(Root, p) == Root(inner=Inner(n=4), seed=2)
+    for text, msg in [("inner.nope: 1\n", "unknown setting inner.nope; valid keys here: enabled, levels"),
+                      ("inner: {n: 1}\ninner.n: 2\n", "setting inner.n is given twice"),
+                      ("inner: 3\ninner.n: 2\n", "inner is given as a value and inner.n as one of its settings"),
+                      ("nope.n: 1\n", "unknown setting nope")]:
+        p.write_text(text)
+        with pytest.raises(ConfigError, match=msg):
+            load_config(Root, p)
+    # through the command line: one line, exit 2, before anything runs
+    (tmp_path / "pasted.yaml").write_text("features.n_features = 1000   # pasted from `vslam config`\n"
+                                          "features.n_levels = 8\n")
+    (tmp_path / "unknown.yaml").write_text("features.n_featurez: 1000\n")
+    for name, msg in [("pasted.yaml", "write one 'key: value' per line"), ("unknown.yaml", "unknown setting features.n_featurez")]:
+        assert main(["run", str(tmp_path), "-o", str(tmp_path / "o"), "--config", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert msg in err and len(err.strip().splitlines()) == 1

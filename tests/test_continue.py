@@ -37,7 +37,7 @@ def kitchen(shared_data: Path, tmp_path_factory) -> dict:
     return {"data": data, "root": root}
 
 
-def test_continued_run_is_in_the_loaded_maps_frame(kitchen: dict) -> None:
+def test_continued_run_is_in_the_loaded_maps_frame(kitchen: dict, capsys) -> None:
     data, root = kitchen["data"], kitchen["root"]
     rc = main(["run", str(data), "--sensor", "rgbd", "--start-frame", "300", "--max-frames", "300",
                "--map", str(root / "A"), "-o", str(root / "B"), "--no-progress"])
@@ -46,6 +46,14 @@ def test_continued_run_is_in_the_loaded_maps_frame(kitchen: dict) -> None:
     assert stats["tracked"] == 300 and stats["segments"] == 1 and stats["merges"] == []
     # placed on the first frame, in segment 0 of the loaded map
     assert stats["relocalizations"] == 1 and stats["map_segments"] == 1
+    # the map loaded and where the session was placed in it: stats.json and the summary
+    n_loaded = len(load_map(root / "A")[0].keyframes)
+    assert stats["map_loaded"] == str((root / "A").resolve()) and stats["map_keyframes_loaded"] == n_loaded
+    assert stats["placed_at_frame"] == 300 and 0 <= stats["placed_keyframe"] < n_loaded
+    assert stats["placed_inliers"] >= 20
+    line = [l for l in capsys.readouterr().out.splitlines() if l.startswith("map loaded:")]
+    assert line == [f"map loaded: {(root / 'A').resolve()} ({n_loaded} keyframes); first frame placed at frame 300 "
+                    f"(against its keyframe {stats['placed_keyframe']}, {stats['placed_inliers']} inliers)"]
     ate, n = _joined_ate(root / "A", root / "B", data)
     assert n == 600 and 0.025 < ate < 0.045  # measured 0.0365 (A alone 0.022, B alone 0.0355)
     # the extended map holds the loaded keyframes (same ids, poses moved by BA by millimetres) and the new ones
@@ -71,6 +79,7 @@ def test_unplaced_session_starts_a_segment_and_joins_when_they_meet(kitchen: dic
                               "frontend.tracking.max_frames_to_place=5"])
     s = res.stats
     assert s["segments"] == 1 and len(s["merges"]) == 1
+    assert s["placed_at_frame"] is None and s["map_loaded"] == str((root / "A").resolve())
     m = s["merges"][0]
     assert (m["from_segment"], m["into_segment"], m["scale"]) == (1, 0, 1.0) and m["inliers"] >= 30
     assert m["query_frame"] >= 305 and m["match_frame"] < 300

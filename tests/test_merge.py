@@ -40,11 +40,15 @@ def kitchen(shared_data: Path, tmp_path_factory) -> dict:
 def test_merged_keyframes_share_one_frame(kitchen: dict) -> None:
     root, data = kitchen["root"], kitchen["data"]
     assert kitchen["rc"] == 0
-    for name in ("map/map.json", "keyframes.txt", "sparse.ply", "stats.json", "config.yaml"):
+    for name in ("map/map.json", "keyframes.txt", "sparse.ply", "stats.json", "config.yaml", "merge.png"):
         assert (root / "AB" / name).is_file(), name
     stats = json.loads((root / "AB" / "stats.json").read_text())
     n_a, n_b = stats["keyframes_a"], stats["keyframes_b"]
     assert stats["seam_keyframes"] >= 10 and stats["scale"] == 1.0
+    # the alignment's inliers (of the seam's 3D-3D correspondences) and their RMS residual, in metres
+    assert 100 <= stats["alignment_inliers"] <= stats["alignment_correspondences"]
+    assert 0.001 < stats["alignment_residual"] < 0.05
+    assert stats["figure"] == str(root / "AB" / "merge.png") and (root / "AB" / "merge.png").stat().st_size > 20_000
     # one SE(3) alignment of all merged keyframes to the ground truth: as good as the separate maps
     ate = _ate(root / "AB", data)
     assert 0.025 < ate < 0.045  # measured 0.036 (A alone 0.023, B alone 0.038)
@@ -86,3 +90,31 @@ def test_missing_map_is_an_error(tmp_path: Path, capsys) -> None:
     rc = main(["merge", str(tmp_path / "nope"), str(tmp_path / "nope2"), "-o", str(tmp_path / "AB")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "no such map folder" in err
+
+
+def test_merge_figure_colours_the_maps_and_marks_the_seam() -> None:
+    """``merge.png``'s figure: A's and B's keyframes as two lines of their own colour, one link per
+    seam match between the matched keyframes, the alignment in the title."""
+    from types import SimpleNamespace
+
+    from vslam.reconstruction.merge_figure import A_COLOUR, B_COLOUR, SEAM_COLOUR, draw_merge
+
+    def kf(i: int, x: float, y: float) -> SimpleNamespace:
+        T = np.eye(4)
+        T[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # camera y (image down) along world -z: z is vertical
+        T[:3, 3] = [x, y, 0.0]
+        return SimpleNamespace(id=i, timestamp=float(i), T_world_cam=T, bad=False)
+
+    kfs = [kf(i, i * 0.1, 0.0) for i in range(6)] + [kf(10 + i, 0.3 + 0.1 * i, 0.05) for i in range(5)]
+    merged = SimpleNamespace(keyframes={k.id: k for k in kfs})
+    fig = draw_merge(merged, 10, [[10, 3, 120], [11, 4, 90]], {"inliers": 412, "residual": 0.011})
+    ax = fig.axes[0]
+    a_line, b_line = ax.lines[0], ax.lines[1]
+    assert (a_line.get_color(), len(a_line.get_xdata())) == (A_COLOUR, 6)
+    assert (b_line.get_color(), len(b_line.get_xdata())) == (B_COLOUR, 5)
+    seam = [l for l in ax.lines if l.get_color() == SEAM_COLOUR and l.get_linestyle() == "-"]
+    assert len(seam) == 2
+    np.testing.assert_allclose(np.column_stack([seam[0].get_xdata(), seam[0].get_ydata()]), [[0.3, 0.05], [0.3, 0.0]])
+    assert ax.get_title() == "merged map (A's frame): alignment 412 inliers, residual 0.0110 m"
+    labels = ax.get_legend_handles_labels()[1]
+    assert labels == ["map A: 6 keyframes", "map B: 5 keyframes", "seam: 2 matched keyframes"]

@@ -116,3 +116,44 @@ def test_a_kernel_module_that_fails_to_warm_is_skipped(caplog):
     ms = warm_kernels(("vslam.no_such_kernels", "vslam.backend.schur_kernels"))
     assert 0.0 <= ms < 60_000.0
     assert "vslam.no_such_kernels" in caplog.text
+
+
+def test_kernels_cold_follows_numbas_cache(tmp_path, monkeypatch):
+    """Cold before a kernel module was ever compiled, warm once numba cached it, cold again when its
+    source changes (numba's own staleness test), all without importing the module."""
+    import importlib
+    import sys
+
+    from vslam.stream import kernels_cold
+
+    name = "tiny_issue25_kernels"
+    src = tmp_path / f"{name}.py"
+    src.write_text("from numba import njit\n\n\n@njit(cache=True)\ndef add(a, b):\n    return a + b\n\n\n"
+                   "def warm():\n    add(1, 2)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert kernels_cold((name,)) and name not in sys.modules
+    try:
+        assert importlib.import_module(name).add(2, 3) == 5  # compiles, writes the cache
+    finally:
+        sys.modules.pop(name, None)
+    assert not kernels_cold((name,))
+    assert kernels_cold((name, "vslam.backend.schur_kernels")) is kernels_cold(("vslam.backend.schur_kernels",))
+    src.write_text(src.read_text() + "\n# edited: the cached machine code is stale\n")
+    assert kernels_cold((name,))
+    assert not kernels_cold(("no_such_module_issue25",))  # nothing to compile
+
+
+def test_compile_notice_runs_once_before_a_cold_warm(monkeypatch):
+    import vslam.stream as stream
+
+    calls = []
+    monkeypatch.setattr(stream, "kernels_cold", lambda modules=stream.KERNEL_MODULES: True)
+    with stream.compile_notice(lambda: calls.append(1)):
+        stream.warm_kernels(("vslam.map.map_kernels",))
+        stream.warm_kernels(("vslam.map.map_kernels",))  # a second tracker in the same process
+    assert calls == [1]
+    monkeypatch.setattr(stream, "kernels_cold", lambda modules=stream.KERNEL_MODULES: False)
+    with stream.compile_notice(lambda: calls.append(2)):
+        stream.warm_kernels(("vslam.map.map_kernels",))
+    stream.warm_kernels(("vslam.map.map_kernels",))  # no listener: nothing is called
+    assert calls == [1]

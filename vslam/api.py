@@ -87,6 +87,8 @@ def open_sequence(path: str | Path, dataset: str | None, sensor: str | None, sta
     from vslam.datasets import open_dataset
 
     options = options or {}
+    if preferred_sensor:  # a map of an inertial run: its images are read as the base sensor's
+        preferred_sensor = preferred_sensor.removesuffix("-inertial")
     probe = open_dataset(path, kind=dataset, camera=camera, **options)
     if sensor is None and preferred_sensor in probe.sensors:
         sensor = preferred_sensor
@@ -151,8 +153,13 @@ def run_path(
     topics: str | None = None,
     viz_options: dict | None = None,
     map_dir: str | Path | None = None,
+    gt: str | Path | None = None,
+    imu: str | Path | None = None,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
+
+    ``sensor``: ``mono``, ``stereo``, ``rgbd`` or one of them with ``-inertial``; ``imu``: an IMU
+    file for a sequence without one (:func:`_open_run`).
 
     ``map_dir`` (a run folder, or its ``map/``) continues that saved map (:meth:`System.from_map`):
     the output map is the extended one and the trajectory is in its world frame.
@@ -169,8 +176,12 @@ def run_path(
     TUM preset name ``fr1``/``fr2``/``fr3``), overriding the sequence's own calibration.
     ``trajectory_format`` (``kitti``, ``euroc``) also writes the trajectory in that format.
     ``topics`` (``COLOR[,DEPTH|,RIGHT]``) picks the image topics of a ROS bag.
+    ``gt`` chooses the ground truth: None the dataset's own, ``"none"`` none, else a trajectory
+    file (:func:`vslam.datasets.ground_truth.resolve_ground_truth`: a problem with it skips the
+    evaluation with a warning; ``stats`` names it, ``gt_file`` and ``gt_frame``).
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
+    from vslam.datasets.ground_truth import resolve_ground_truth
     from vslam.datasets.live import is_live_source
     from vslam.datasets.prefetch import FrameRange
     from vslam.runner import run_sequence
@@ -184,63 +195,142 @@ def run_path(
         return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
                         progress=progress, viz=viz, trajectory_format=trajectory_format, viz_options=viz_options)
     cfg = resolve_config(config, overrides)
-    options = {"topics": topics} if topics else {}
-    ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames, camera=camera, options=options)
-    if getattr(ds, "calibration_source", None):
-        log.info("camera: %s", ds.calibration_source)
-    system = System(cfg, ds.camera, sensor=sensor) if map_dir is None else _continue_map(cfg, ds, sensor, map_dir)
-    gt = ds.ground_truth()
+    ds, sensor, stop, imu_inputs = _open_run(path, dataset, sensor, imu, map_dir, dense, start_frame, max_frames,
+                                             camera, topics)
+    truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
+    system = _continue_map(cfg, ds, sensor, map_dir, output, path) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
-    viewer = on_frame = None
-    if viz:
-        from vslam.viz.rerun_viewer import RerunViewer
-
-        viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
-        on_frame = viewer.bind(system)
-    if dense and sensor == "mono":
-        raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
+    viewer, on_frame = open_viewer(viz, system, viz_options) if viz else (None, None)
     try:
         result = run_sequence(
             system, FrameRange(ds, start_frame, stop), total=stop - start_frame, prefetch_mode=prefetch, output_dir=output, config=cfg,
-            ground_truth=gt, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
+            ground_truth=truth.trajectory, align="sim3" if sensor == "mono" else "se3", progress=progress,
+            on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
-                         "start_frame": start_frame,
+                         "start_frame": start_frame, **truth.stats(),
                          **({"camera": ds.calibration_source} if getattr(ds, "calibration_source", None) else {})},
             inputs=(path,),
         )
     finally:
         if viewer is not None:
             viewer.close()
-    return _extra_outputs(result, output, trajectory_format, dense, progress)
+    return _extra_outputs(result, output, trajectory_format, dense, progress, (truth.trajectory, sensor))
 
 
-def _continue_map(cfg, ds, sensor: str, map_dir: str | Path):
-    """A :class:`System` continuing the map saved in ``map_dir`` (same sensor, same image size)."""
+def _open_run(path, dataset, sensor, imu, map_dir, dense: bool, start_frame: int, max_frames, camera, topics):
+    """:func:`open_sequence` for ``run_path``: ``(dataset, sensor, stop, System's IMU arguments)``.
+
+    An inertial sensor (``mono-inertial`` ...) reads the base sensor's frames and the IMU: the
+    dataset's (EuRoC ``imu0/``) or ``imu``, a file with EuRoC CSV columns, its calibration beside it
+    (:func:`vslam.datasets.imu.dataset_imu`); :class:`vslam.system.System` then initializes a
+    gravity-aligned (z up), metric world and predicts each frame's pose with the IMU."""
+    base, inertial = _split_requested(sensor, imu, map_dir)
+    ds, base, stop = open_sequence(path, dataset, base, start_frame, max_frames, camera=camera,
+                                   options={"topics": topics} if topics else {})
+    if getattr(ds, "calibration_source", None):
+        log.info("camera: %s", ds.calibration_source)
+    if dense and base == "mono":
+        raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
+    return ds, f"{base}-inertial" if inertial else base, stop, (_imu_inputs(ds, imu) if inertial else {})
+
+
+def _split_requested(sensor: str | None, imu, map_dir) -> tuple[str | None, bool]:
+    """``(base sensor or None, inertial)`` of the requested sensor; ``imu`` needs an inertial one."""
+    from vslam.errors import ConfigError
+    from vslam.inertial.sensors import INERTIAL_SENSORS, split_sensor
+
+    base, inertial = split_sensor(sensor) if sensor is not None else (None, False)
+    if imu is not None and not inertial:
+        raise ConfigError(f"--imu is read by the inertial sensors only: add --sensor {' | '.join(INERTIAL_SENSORS)}")
+    if inertial and map_dir is not None:
+        raise ConfigError(f"continuing a map (--map) with --sensor {sensor} is not supported yet; run it as {base}")
+    return base, inertial
+
+
+def _imu_inputs(ds, imu) -> dict:
+    """``System``'s ``imu`` and ``imu_calibration`` for an inertial run (:func:`vslam.datasets.imu.dataset_imu`)."""
+    from vslam.datasets.imu import dataset_imu
+
+    samples, calib = dataset_imu(ds, imu)
+    log.info("IMU: %d samples from %s", len(samples), samples.source or imu)
+    return {"imu": samples, "imu_calibration": calib}
+
+
+def _trajectory_png(result, out: Path, ground_truth, sensor: str) -> None:
+    """``trajectory.png`` of the run (:func:`vslam.eval.run_plot.plot_run_trajectory`); a failure
+    is a warning, the run's results are written."""
+    from vslam.eval.run_plot import plot_run_trajectory
+
+    try:
+        plot_run_trajectory(result.trajectory, out / "trajectory.png", ground_truth,
+                            align="sim3" if sensor == "mono" else "se3", title=f"vslam run ({sensor})",
+                            mono=sensor == "mono")
+    except Exception as exc:  # noqa: BLE001 - a plot never fails a finished run
+        log.warning("%s: trajectory.png not written (%s: %s)", out, type(exc).__name__, exc)
+
+
+def open_viewer(viz: str, system, viz_options: dict | None = None):
+    """``(viewer, on_frame)`` for ``--viz``; ``(None, None)`` with a warning, said at the start,
+    when no viewer can open here (:class:`~vslam.viz.rerun_viewer.ViewerUnavailable`: a headless
+    machine, say), so the run goes on without one."""
+    from vslam.viz.rerun_viewer import RerunViewer, ViewerUnavailable
+
+    try:
+        viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
+    except ViewerUnavailable as exc:
+        log.warning("%s; running without a viewer", exc)
+        return None, None
+    return viewer, viewer.bind(system)
+
+
+def _continue_map(cfg, ds, sensor: str, map_dir: str | Path, output: str | Path | None = None, path=None):
+    """A :class:`System` continuing the map saved in ``map_dir`` (same sensor, same image size). A
+    SIGTERM / Ctrl-C while the map loads leaves ``output/stats.json`` with its error, as one during
+    the run does; a map another command is writing is waited for, or refused naming it, and a
+    stopped in-place run's map is read from ``.previous-run/`` (:func:`vslam.map.io.load_run_map`)."""
     from vslam.errors import MapFormatError
-    from vslam.map.io import load_map
+    from vslam.map.io import load_run_map
+    from vslam.runner import error_stats_when_stopped
     from vslam.system import System
 
-    slam_map, database, camera, meta = load_map(map_dir, database_config=cfg.loop.database)
+    where = {"map": str(Path(map_dir).resolve()), "path": str(Path(path).resolve()) if path is not None else None,
+             "sensor": sensor}
+    with error_stats_when_stopped(output, (path,) if path is not None else (), where):
+        slam_map, database, camera, meta = load_run_map(map_dir, "the map", "continue", cfg.loop.database)
     if meta.get("sensor") not in (None, sensor):
         raise MapFormatError(f"{map_dir}: a {meta.get('sensor')!r} map cannot be continued with {sensor!r} frames")
     if camera is not None and (camera.width, camera.height) != (ds.camera.width, ds.camera.height):
         raise MapFormatError(f"{map_dir}: the map's camera is {camera.width}x{camera.height}, the sequence's "
                              f"{ds.camera.width}x{ds.camera.height}")
     log.info("continuing the map in %s (%d keyframes)", map_dir, len(slam_map.keyframes))
-    return System.from_map(cfg, ds.camera, sensor, slam_map, database)
+    system = System.from_map(cfg, ds.camera, sensor, slam_map, database)
+    system.map_loaded = str(Path(map_dir).resolve())  # stats.json's map_loaded
+    return system
 
 
-def _extra_outputs(result, output: str | Path | None, trajectory_format: str, dense: bool, progress: bool):
-    """After a run: the trajectory in another format (``--trajectory-format``) and the TSDF mesh
-    (``--dense``), recorded in the run's stats."""
-    if trajectory_format != "tum" and output is not None and len(result.trajectory):
-        result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory, trajectory_format))
-    if dense and output is not None:
-        from vslam.reconstruction import reconstruct_run
-        from vslam.runner import write_stats
+def _extra_outputs(result, output: str | Path | None, trajectory_format: str, dense: bool, progress: bool,
+                   plot: tuple | None = None):
+    """After a run: ``trajectory.png`` (``plot``: ``(ground truth, sensor)``), the trajectory in
+    another format (``--trajectory-format``) and the TSDF mesh (``--dense``), recorded in the stats.
+    A SIGTERM / Ctrl-C meanwhile rewrites ``stats.json`` with its ``error`` (these outputs may be
+    missing), as a run stopped earlier leaves it."""
+    from vslam.runner import write_error_stats, write_stats
 
-        result.stats["dense"] = reconstruct_run(output, progress=progress_bar(progress))
-        write_stats(Path(output), result.stats)
+    try:
+        if plot is not None and output is not None and len(result.trajectory) >= 2:
+            _trajectory_png(result, Path(output), *plot)
+        if trajectory_format != "tum" and output is not None and len(result.trajectory):
+            result.stats["trajectory_export"] = str(export_trajectory(Path(output), result.trajectory,
+                                                                      trajectory_format))
+        if dense and output is not None:
+            from vslam.reconstruction import reconstruct_run
+
+            result.stats["dense"] = reconstruct_run(output, progress=progress_bar(progress))
+            write_stats(Path(output), result.stats)
+    except KeyboardInterrupt as exc:
+        if output is not None:
+            write_error_stats(Path(output), exc, result.stats)
+        raise
     return result
 
 
@@ -290,10 +380,8 @@ def run_live(
     stats = {"sensor": "mono", "dataset": "live", "path": str(source), "start_frame": 0,
              "camera": ds.calibration_source}
     try:
-        if viz:
-            from vslam.viz.rerun_viewer import RerunViewer
-
-            viewer = RerunViewer.from_spec(viz, system=system, **(viz_options or {}))
+        viewer = open_viewer(viz, system, viz_options)[0] if viz else None
+        if viewer is not None:
             callbacks.insert(0, viewer.bind(system))
         if threading.current_thread() is threading.main_thread():
             def stop_on_sigint(signum, frame):  # first Ctrl-C: end the stream, keep every output

@@ -5,6 +5,12 @@ The pinhole model is Zhang's method (``cv2.calibrateCamera``: ``k1 k2 p1 p2 k3``
 is the Kannala-Brandt / equidistant model (``cv2.fisheye.calibrate``: ``k1..k4``). The RMS
 reprojection error is over all corners; a view whose own RMS is above ``max(2 * median, 1 px)`` is
 reported as an outlier (and dropped, then the calibration is redone, when ``drop_outliers``).
+
+The result is checked (:func:`quality_warnings`): a principal point more than 10 % of the image
+size from its centre, extreme distortion terms (a radial model that folds over inside the image,
+``|k| > 1``, ``|p| > 0.05``), views that leave part of the image empty (3x3 grid: the empty cells
+named, "left edge", "top-right corner" ...) and fewer than 10 views each give a warning, with the
+advice to take more views.
 """
 from __future__ import annotations
 
@@ -67,6 +73,7 @@ class CalibrationResult:
     view_rms: dict[str, float]
     outliers: list[str]
     no_board: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # quality_warnings(), the advice last
 
     def summary(self) -> str:
         c = self.camera
@@ -75,9 +82,13 @@ class CalibrationResult:
             f"fx {c.fx:.3f} fy {c.fy:.3f} cx {c.cx:.3f} cy {c.cy:.3f} ({c.width}x{c.height})",
             f"dist {' '.join(f'{d:.6f}' for d in c.dist)}",
             f"RMS reprojection error {self.rms:.4f} px",
+            "per-view RMS reprojection error [px]:",
         ]
+        for name, err in self.view_rms.items():
+            lines.append(f"  {name}: {err:.3f}" + (" (outlier)" if name in self.outliers else ""))
         for name in self.outliers:
             lines.append(f"outlier view: {name} (RMS {self.view_rms[name]:.3f} px)")
+        lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def to_yaml(self) -> str:
@@ -196,16 +207,110 @@ def calibrate_views(views, board: Board, fisheye: bool = False, drop_outliers: b
     dist = tuple(float(x) for x in (D[:4] if fisheye else D[:5]))
     cam = PinholeCamera(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), size[0], size[1],
                         dist if fisheye else tuple(list(dist) + [0.0] * (5 - len(dist))))
-    return CalibrationResult(cam, model, rms, view_rms, outliers, no_board)
+    dropped = bool(outliers and drop_outliers and len(names) - len(outliers) >= min_views)
+    used = [i for n, i in zip(names, img) if not (dropped and n in outliers)]
+    warnings = quality_warnings(cam, model, used, size)
+    for w in warnings:
+        log.info("calibration: %s", w)
+    return CalibrationResult(cam, model, rms, view_rms, outliers, no_board, warnings)
+
+
+# ============================================================================ quality checks
+#: a principal point further than this fraction of the image size from the centre is suspicious
+MAX_CENTRE_OFFSET = 0.10
+#: fewer views than this give a warning
+MIN_GOOD_VIEWS = 10
+#: a grid cell counts as covered when the views' boards cover this fraction of it
+MIN_CELL_COVER = 0.25
+CELL_NAMES = (("top-left corner", "top edge", "top-right corner"),
+              ("left edge", "centre", "right edge"),
+              ("bottom-left corner", "bottom edge", "bottom-right corner"))
+
+
+def quality_warnings(camera: PinholeCamera, model: str, corners: list[np.ndarray],
+                     size: tuple[int, int]) -> list[str]:
+    """What looks wrong with a calibration from the image points ``corners`` (one ``(N, 2)`` array
+    per view) of ``size`` ``(width, height)`` images (see the module docstring); the last entry,
+    when there is any, says to take more views."""
+    out = []
+    w, h = size
+    dx, dy = (camera.cx - (w - 1) / 2) / w, (camera.cy - (h - 1) / 2) / h
+    if max(abs(dx), abs(dy)) > MAX_CENTRE_OFFSET:
+        out.append(f"principal point ({camera.cx:.1f}, {camera.cy:.1f}) is {100 * abs(dx):.0f} % of the width and "
+                   f"{100 * abs(dy):.0f} % of the height from the image centre (more than "
+                   f"{100 * MAX_CENTRE_OFFSET:.0f} % is rare for a real lens)")
+    extreme = _extreme_distortion(camera, model)
+    if extreme:
+        out.append(f"distortion terms are extreme ({extreme})")
+    fraction, missing = view_coverage(corners, size)
+    if missing:
+        out.append(f"the views cover {100 * fraction:.0f} % of the image; no board seen in the "
+                   + ", ".join(missing))
+    if len(corners) < MIN_GOOD_VIEWS:
+        out.append(f"only {len(corners)} views with the board ({MIN_GOOD_VIEWS} or more recommended)")
+    if out:
+        where = f", with the board in the {' / '.join(missing)}," if missing else ""
+        out.append(f"take more views{where} at several distances and tilts (15-30 in all), and calibrate again")
+    return out
+
+
+def _extreme_distortion(camera: PinholeCamera, model: str) -> str:
+    """Why the distortion terms are extreme ("" when they are not): a term beyond what lenses have,
+    or a radial model that folds over (stops increasing) inside the image."""
+    d = np.asarray(camera.dist, float)
+    names = ("k1", "k2", "k3", "k4") if model == "equidistant" else ("k1", "k2", "p1", "p2", "k3")
+    big = [f"{n} {v:.3g}" for n, v in zip(names, d)
+           if abs(v) > (0.05 if n in ("p1", "p2") else 1.0)]
+    fold = ""
+    if model != "equidistant" and len(d) >= 5:
+        k1, k2, k3 = d[0], d[1], d[4]
+        corners = np.array([[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]], float)
+        r_max = float(np.max(np.hypot((corners[:, 0] - camera.cx) / camera.fx, (corners[:, 1] - camera.cy) / camera.fy)))
+        r = np.linspace(0.0, r_max, 200)
+        slope = 1 + 3 * k1 * r ** 2 + 5 * k2 * r ** 4 + 7 * k3 * r ** 6  # d/dr of r (1 + k1 r^2 + k2 r^4 + k3 r^6)
+        if np.any(slope <= 0):
+            fold = f"the radial model folds over at {100 * r[np.argmax(slope <= 0)] / r_max:.0f} % of the corner radius"
+    return "; ".join(p for p in (", ".join(big), fold) if p)
+
+
+def view_coverage(corners: list[np.ndarray], size: tuple[int, int]) -> tuple[float, list[str]]:
+    """``(fraction of the image inside some view's board, names of the 3x3 grid cells covered less
+    than MIN_CELL_COVER)``; a view's board is the convex hull of its corners."""
+    import cv2
+
+    w, h = size
+    step = max(1, int(max(w, h) // 160))  # a coarse mask is enough
+    mw, mh = -(-w // step), -(-h // step)
+    mask = np.zeros((mh, mw), np.uint8)
+    for pts in corners:
+        p = np.asarray(pts, float).reshape(-1, 2) / step
+        if len(p) >= 3:
+            cv2.fillConvexPoly(mask, cv2.convexHull(np.round(p).astype(np.int32)), 1)
+    missing = []
+    for i in range(3):
+        for j in range(3):
+            cell = mask[i * mh // 3:(i + 1) * mh // 3, j * mw // 3:(j + 1) * mw // 3]
+            if cell.size and cell.mean() < MIN_CELL_COVER:
+                missing.append(CELL_NAMES[i][j])
+    return float(mask.mean()), missing
 
 
 def calibrate_source(source: str | Path, board: Board, output: str | Path | None = None, fisheye: bool = False,
                      every: int = 1) -> CalibrationResult:
-    """Calibrate from an image folder or a video and write ``output`` (vslam ``camera.yaml``)."""
-    result = calibrate_views(read_source(source, every), board, fisheye=fisheye)
-    if output is not None:
-        out = Path(output)
+    """Calibrate from an image folder or a video and write ``output`` (vslam ``camera.yaml``),
+    atomically; ``output`` may not be the video or one of the images (refused before the work)."""
+    from vslam.outputs import IMAGE_SUFFIXES, atomic_write_text, check_output_file, refuse_inputs, same_path
+
+    out = Path(output) if output is not None else None
+    if out is not None:
+        refuse_inputs(out, (source,), "calibration")
+        if Path(source).is_dir() and same_path(out.parent, source) and out.suffix.lower() in IMAGE_SUFFIXES:
+            raise CalibrationError(f"{out}: is one of the calibration images in {source}; write the calibration "
+                                   "to a .yaml file")
         if not out.parent.is_dir():
             raise CalibrationError(f"{out}: folder {out.parent} does not exist")
-        out.write_text(result.to_yaml())
+        check_output_file(out, "calibration")
+    result = calibrate_views(read_source(source, every), board, fisheye=fisheye)
+    if out is not None:
+        atomic_write_text(out, result.to_yaml())
     return result

@@ -2,7 +2,8 @@
 
 Defaults live in code. A YAML file overrides any subset (nested mappings mirror the dataclass
 tree) and ``--set key.sub=value`` overrides single fields; values are parsed as YAML scalars
-and checked against the field's type, so ``--set loop.enabled=false`` or
+(aliases refused, files over :data:`MAX_CONFIG_BYTES` too) and checked against the field's type and
+its declared range (``param(..., bounds="[1, 32]")``), so ``--set loop.enabled=false`` or
 ``--set frontend.motion=3d3d`` work and a typo gives a :class:`~vslam.errors.ConfigError`
 listing the valid keys. Sections nest per concern (``--set frontend.keyframes.max_frames=5``);
 the old flat keys a section replaced (``frontend.kf_max_frames``) still load, with a warning.
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 import types
 import typing
 from pathlib import Path
@@ -22,10 +24,13 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 import yaml
 
 from vslam.errors import ConfigError
-from vslam.param import doc_of, param, section
+from vslam.param import Bounds, bounds_of, doc_of, param, section
 
 log = logging.getLogger(__name__)
-from vslam.textfile import open_text
+from vslam.textfile import load_yaml_text, open_text
+
+#: a settings file is a few KB; larger is not one (and is not parsed)
+MAX_CONFIG_BYTES = 1_000_000
 
 
 def to_dict(cfg: Any) -> dict:
@@ -112,8 +117,9 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {data!r}")
     base = base if base is not None else cls()
     hints = get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    data = _nest_flat_keys(cls, data, prefix)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    names = set(fields)
+    data = _nest_flat_keys(cls, _expand_dotted(data, prefix), prefix)
     unknown = set(data) - names
     if unknown:
         raise ConfigError(
@@ -127,10 +133,54 @@ def from_dict(cls: type, data: dict | None, prefix: str = "", base: Any = None) 
             changes[name] = from_dict(type(current), value, prefix=f"{prefix}{name}.", base=current)
         else:
             changes[name] = _coerce(value, tp, prefix + name)
+            _check_range(cls, fields[name], changes[name], prefix + name)  # before the section's own checks
     try:
-        return dataclasses.replace(base, **changes)
+        out = dataclasses.replace(base, **changes)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: {exc}") from None
+    return out
+
+
+def _bounds(cls: type, f: dataclasses.Field) -> Bounds | None:
+    return bounds_of(f) or _BOUNDS_DECLARED_HERE.get(cls, {}).get(f.name)
+
+
+def _check_range(cls: type, f: dataclasses.Field, value: Any, key: str) -> None:
+    b = _bounds(cls, f)
+    if b is not None and not b.contains(value):
+        raise ConfigError(f"{key}={format_value(value)} is out of range: valid values are {b.text} ({doc_of(f)})")
+
+
+def check_bounds(cfg: Any, prefix: str = "") -> None:
+    """Raise :class:`ConfigError` (naming the key and its range) for the first setting of ``cfg``
+    outside the range declared with :func:`vslam.param.param` (``bounds``); :func:`from_dict`
+    checks each value it sets the same way."""
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(value):
+            check_bounds(value, f"{prefix}{f.name}.")
+        else:
+            _check_range(type(cfg), f, value, prefix + f.name)
+
+
+def _expand_dotted(data: dict, prefix: str = "") -> dict:
+    """Dotted keys (``features.n_features: 1000``, the form ``vslam config`` prints) nested one
+    level (``features: {n_features: 1000}``; deeper dots are expanded by the section they land in),
+    merged with the nested keys beside them; a setting given both ways is refused."""
+    if not any(isinstance(k, str) and "." in k for k in data):
+        return data
+    out = {k: v for k, v in data.items() if not (isinstance(k, str) and "." in k)}
+    for key, value in data.items():
+        if not (isinstance(key, str) and "." in key):
+            continue
+        head, rest = key.split(".", 1)
+        section = out.get(head, {})
+        if not isinstance(section, dict):
+            raise ConfigError(f"{prefix}{head} is given as a value and {prefix}{key} as one of its settings; keep one")
+        if rest in section:
+            raise ConfigError(f"setting {prefix}{key} is given twice (nested and dotted); keep one")
+        out[head] = {**section, rest: value}
+    return out
 
 
 def flat_key_map(cls: type) -> dict[str, tuple[str, str]]:
@@ -183,6 +233,7 @@ class Setting:
     default: Any
     type: str
     doc: str
+    bounds: str = ""  # the valid range, "[1, 32]" ('' for settings that are not numbers)
 
 
 def _type_name(tp: Any) -> str:
@@ -202,7 +253,8 @@ def iter_settings(cls: type, prefix: str = "") -> list[Setting]:
         if dataclasses.is_dataclass(value):
             out += iter_settings(type(value), f"{prefix}{f.name}.")
         else:
-            out.append(Setting(prefix + f.name, value, _type_name(hints[f.name]), doc_of(f)))
+            b = _bounds(cls, f)
+            out.append(Setting(prefix + f.name, value, _type_name(hints[f.name]), doc_of(f), b.text if b else ""))
     return out
 
 
@@ -231,7 +283,8 @@ def settings_text(cls: type, only: str = "") -> str:
     """Every setting of ``cls`` as ``key = default  doc`` lines (those under ``only`` if given)."""
     rows = [s for s in iter_settings(cls) if not only or s.key == only or s.key.startswith(only + ".")]
     width = max((len(f"{s.key} = {format_value(s.default)}") for s in rows), default=0)
-    return "".join(f"{f'{s.key} = {format_value(s.default)}':<{width}}  # {s.doc}\n" for s in rows)
+    return "".join(f"{f'{s.key} = {format_value(s.default)}':<{width}}  # {s.doc}"
+                   f"{f'; valid {s.bounds}' if s.bounds else ''}\n" for s in rows)
 
 
 def settings_markdown(cls: type) -> str:
@@ -243,7 +296,8 @@ def settings_markdown(cls: type) -> str:
         "<!-- Generated by `vslam config --markdown > docs/settings.md` from the config dataclasses "
         "(vslam/*/config.py); do not edit by hand. tests/cli/test_config_cmd.py fails when it is stale. -->",
         "",
-        "Every setting with its default. Override in a YAML file (`vslam run --config FILE`, nested like the "
+        "Every setting with its default and, for a number, its valid range (brackets include the end, "
+        "parentheses exclude it; a value outside is refused with the key and the range). Override in a YAML file (`vslam run --config FILE`, nested like the "
         "keys) or with `--set key=value` (e.g. `--set frontend.keyframes.max_frames=10`); `vslam run` writes "
         "the resolved `config.yaml` next to its results. `vslam config` prints this list.",
         "",
@@ -254,11 +308,11 @@ def settings_markdown(cls: type) -> str:
     for section_key, rows in groups.items():
         title = f"{'#' * min(section_key.count('.') + 2, 4)} `{section_key}`"
         lines += [title + (f": {docs[section_key]}" if docs.get(section_key) else ""), "",
-                  "| key | type | default | description |", "|---|---|---|---|"]
+                  "| key | type | default | range | description |", "|---|---|---|---|---|"]
         for s in rows:
             key = s.key[len(section_key) + 1:] if section_key else s.key
             lines.append(f"| `{key}` | {s.type.replace('|', ' or ')} | `{format_value(s.default)}` | "
-                         f"{s.doc.replace('|', '/')} |")
+                         f"{s.bounds and f'`{s.bounds}`'} | {s.doc.replace('|', '/')} |")
         lines.append("")
     return "\n".join(lines).rstrip("\n") + "\n"
 
@@ -272,8 +326,10 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not key:
         raise ConfigError(f"--set expects key=value, got {text!r}")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
-    except yaml.YAMLError:
+        value = load_yaml_text(raw, f"--set {key}", ConfigError) if raw.strip() else ""
+    except ConfigError as exc:
+        if "alias" in str(exc):  # a memory bomb, not text
+            raise
         value = raw
     return key.split("."), value
 
@@ -292,10 +348,10 @@ def load_config(cls: type, path: str | Path | None = None, overrides: list[str] 
         path = Path(path)
         if not path.is_file():
             raise ConfigError(f"{path}: config file not found")
-        try:
-            data = yaml.safe_load(open_text(path, ConfigError).read()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        text = open_text(path, ConfigError, max_bytes=MAX_CONFIG_BYTES).read()
+        if re.search(r"^\s*[A-Za-z_][\w.]*\s*=", text, re.M):  # `vslam config`'s lines pasted as they are
+            raise ConfigError(f"{path}: write one 'key: value' per line (features.n_features: 1000), not 'key = value'")
+        data = load_yaml_text(text, path, ConfigError) or {}  # aliases (memory bombs) refused
         try:
             cfg = from_dict(cls, data, base=cfg)
         except ConfigError as exc:
@@ -325,28 +381,28 @@ class LocalizerConfig:
     """Map-based localization (``vslam localize``, :class:`vslam.localizer.Localizer`): tracking against a
     fixed map, relocalizing globally when lost."""
 
-    min_inliers: int = param(20, "inliers after the final (local map) refinement to accept a tracked or relocalized pose")
-    min_first_pass_inliers: int = param(12, "inliers of the first (prediction-guided) pass needed to go on to the local-map pass (ORB-SLAM's TrackWithMotionModel: 10)")
+    min_inliers: int = param(20, "inliers after the final (local map) refinement to accept a tracked or relocalized pose", bounds="[6, 1000000]")
+    min_first_pass_inliers: int = param(12, "inliers of the first (prediction-guided) pass needed to go on to the local-map pass (ORB-SLAM's TrackWithMotionModel: 10)", bounds="[6, 1000000]")
     # The map is fixed and verified by guided matching, so a lower bar than SLAM's (40) recovers sooner.
-    reloc_min_inliers: int | None = param(30, "inliers a global relocalization needs (null: loop.relocalization.min_inliers, tuned for SLAM)")
-    search_radius_px: float = param(12.0, "guided-matching radius around the constant-velocity prediction, pixels")
-    search_radius_wide_px: float = param(30.0, "retry radius when the first pass finds too few matches, pixels")
-    refine_radius_px: float = param(5.0, "radius of the second matching pass at the refined pose, pixels")
-    n_near_keyframes: int = param(8, "keyframes nearest to the predicted pose whose points are projected")
-    n_covisible: int = param(10, "covisible keyframes of the reference keyframe added to the local map")
-    max_view_angle_deg: float = param(70.0, "a nearby keyframe must look within this angle of the predicted view, degrees")
-    match_ratio: float = param(0.9, "ratio test of the guided matching")
-    max_descriptor_distance: float = param(64.0, "Hamming bound of the guided matching")
-    max_velocity_m: float = param(0.3, "a constant-velocity step longer than this is reset to zero motion, metres")
-    max_velocity_deg: float = param(30.0, "the same for its rotation, degrees")
-    max_step_m: float = param(0.1, "a tracked pose farther than this from the prediction is rejected (relocalized instead), metres")
-    max_step_deg: float = param(10.0, "the same for its rotation, degrees")
+    reloc_min_inliers: int | None = param(30, "inliers a global relocalization needs (null: loop.relocalization.min_inliers, tuned for SLAM)", bounds="[6, 1000000]")
+    search_radius_px: float = param(12.0, "guided-matching radius around the constant-velocity prediction, pixels", bounds="(0, 10000]")
+    search_radius_wide_px: float = param(30.0, "retry radius when the first pass finds too few matches, pixels", bounds="(0, 10000]")
+    refine_radius_px: float = param(5.0, "radius of the second matching pass at the refined pose, pixels", bounds="(0, 10000]")
+    n_near_keyframes: int = param(8, "keyframes nearest to the predicted pose whose points are projected", bounds="[1, 10000]")
+    n_covisible: int = param(10, "covisible keyframes of the reference keyframe added to the local map", bounds="[0, 10000]")
+    max_view_angle_deg: float = param(70.0, "a nearby keyframe must look within this angle of the predicted view, degrees", bounds="[0, 180]")
+    match_ratio: float = param(0.9, "ratio test of the guided matching", bounds="(0, 1]")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the guided matching", bounds="[0, 1000000]")
+    max_velocity_m: float = param(0.3, "a constant-velocity step longer than this is reset to zero motion, metres", bounds="[0, 1000000]")
+    max_velocity_deg: float = param(30.0, "the same for its rotation, degrees", bounds="[0, 180]")
+    max_step_m: float = param(0.1, "a tracked pose farther than this from the prediction is rejected (relocalized instead), metres", bounds="[0, 1000000]")
+    max_step_deg: float = param(10.0, "the same for its rotation, degrees", bounds="[0, 180]")
     use_depth: bool = param(True, "RGB-D / stereo depth as extra (virtual right camera) residuals in refinement")
     # The fix the loop verification got: with depth noise growing with z^2 the closed-form pose is centimetres
     # and degrees off, too far for the 8 px guided search (7-Scenes map 0-599, frames 600-999: candidates
     # verified with 20-28 inliers, < 30).
     reloc_refine_ransac: bool = param(True, "global relocalization refines its 3D-3D RANSAC pose on reprojection before guided matching")
-    max_point_view_angle_deg: float = param(60.0, "a map point is projected only when seen within this angle of its mean viewing direction, degrees")
+    max_point_view_angle_deg: float = param(60.0, "a map point is projected only when seen within this angle of its mean viewing direction, degrees", bounds="[0, 180]")
     check_point_distance: bool = param(True, "a map point is projected only within its scale-invariance distance range (ORB-SLAM's isInFrustum)")
     always_ransac: bool = param(False, "PnP RANSAC on every frame's first matching pass (default: only without a velocity, or after a failed pass)")
 
@@ -371,3 +427,13 @@ class Config:
     backend: BackendConfig = section(BackendConfig, "local mapping, bundle adjustment, pose graph, EKF")
     loop: LoopConfig = section(LoopConfig, "place recognition, loop closing, relocalization")
     localize: LocalizerConfig = section(LocalizerConfig, "localization in a saved map (vslam localize)")
+
+
+# features/config.py predates per-field bounds: its ranges are declared here, checked and documented
+# exactly as the ``bounds`` of :func:`vslam.param.param`.
+_BOUNDS_DECLARED_HERE: dict[type, dict[str, Bounds]] = {FeatureConfig: {name: Bounds.parse(text) for name, text in {
+    "n_features": "[1, 100000]", "scale_factor": "(1, 4]", "n_levels": "[1, 32]", "fast_threshold": "[1, 255]",
+    "min_fast_threshold": "[0, 255]", "cell_size": "[4, 4096]", "edge_threshold": "[0, 255]",
+    "patch_size": "[7, 255]", "sift_contrast_threshold": "(0, 1]", "akaze_threshold": "(0, 1]",
+    "brisk_threshold": "[1, 255]", "gftt_quality": "(0, 1]", "gftt_min_distance": "[0, 10000]",
+}.items()}}

@@ -184,7 +184,7 @@ class Localizer:
             "relocalization_attempts": self.relocalizer.attempts,
             "track_failures": self.counts["track_failures"],
             "implausible_steps": self.counts["implausible_steps"],
-            "lost": self.counts["lost"],
+            "lost": self.counts["frames"] - n_loc,  # every frame not localized (= counts["lost"])
             "stage_ms": {k: round(1000.0 * v / n, 2) for k, v in self.timers.items()},
             "startup_ms": {"kernels": self._kernels_ms},  # loading the compiled kernels (vslam.stream)
         }

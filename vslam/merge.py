@@ -231,16 +231,30 @@ def _agrees(m: SeamMatch, S: np.ndarray, map_b, tolerance: float, agree_deg: flo
     return bool(np.linalg.norm(A[:3, 3] - B[:3, 3]) <= tolerance and _rot_deg(R) <= agree_deg)
 
 
-def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> np.ndarray:
-    """``S_A_B`` from all 3D-3D correspondences of the agreeing matches (B-world point of each inlier
-    keypoint -> A's map point), Umeyama inside LMedS; the best single match's when that fails."""
+def _rms_residual(S: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
+    """RMS distance between ``S`` applied to ``src`` and ``dst`` (``(N, 3)``; finite rows only)."""
+    ok = np.all(np.isfinite(src), axis=1) & np.all(np.isfinite(dst), axis=1)
+    if not ok.any():
+        return float("nan")
+    d = src[ok] @ S[:3, :3].T + S[:3, 3] - dst[ok]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> tuple[np.ndarray, dict]:
+    """``(S_A_B, alignment)``: ``S_A_B`` from all 3D-3D correspondences of the agreeing matches
+    (B-world point of each inlier keypoint -> A's map point), Umeyama inside LMedS; the best single
+    match's when that fails. ``alignment``: its ``inliers`` (correspondences it explains, of
+    ``correspondences``) and their RMS ``residual`` (A's map units: metres unless monocular)."""
     from vslam.errors import GeometryError
     from vslam.geometry.align import align_points
 
     src = np.concatenate([m.X_b for m in group])
     dst = np.concatenate([map_a.points.position[m.ver.point_ids] for m in group])
     ok = np.all(np.isfinite(src), axis=1)
-    fallback = max(group, key=lambda m: m.ver.n_inliers).S_a_b
+    best = max(group, key=lambda m: m.ver.n_inliers)
+    fallback = (best.S_a_b, {"inliers": int(best.ver.n_inliers), "correspondences": int(ok.sum()),
+                             "residual": _rms_residual(best.S_a_b, best.X_b, map_a.points.position[best.ver.point_ids]),
+                             "from": "best match"})
     if ok.sum() < 6:
         return fallback
     try:
@@ -250,7 +264,9 @@ def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> np.ndarray
         return fallback
     log.info("merge: transform from %d correspondences (%d inliers) of %d matches", int(ok.sum()), int(inl.sum()),
              len(group))
-    return S
+    inl = np.asarray(inl, dtype=bool)
+    return S, {"inliers": int(inl.sum()), "correspondences": int(ok.sum()),
+               "residual": _rms_residual(S, src[ok][inl], dst[ok][inl]), "from": "all seam correspondences"}
 
 
 # ============================================================================ weld
@@ -301,7 +317,7 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
             f"the maps do not overlap: {len(matches)} of {len(map_b.keyframes)} keyframes of B were verified in A "
             f"and at most {len(group)} agree on one alignment ({options.min_agreeing} needed); map B must revisit "
             "a place mapped in A")
-    S = estimate_transform(group, map_a, sensor)
+    S, alignment = estimate_transform(group, map_a, sensor)
     ids = {m.b_kf for m in group}
     weak = [m for m in matches if m.b_kf not in ids and _agrees(m, S, map_b, tol, options.agree_deg)]
     scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
@@ -329,6 +345,8 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
         "S_a_b": [[round(float(x), 6) for x in row] for row in S], "scale": round(scale, 6),
         "fused_points": int(fused), "cross_links": int(cross), "place_recognition_s": round(t_pr, 2),
         "keyframe_id_offset": off, "point_id_offset": appended.point_offset,
+        "alignment_inliers": alignment["inliers"], "alignment_correspondences": alignment["correspondences"],
+        "alignment_residual": round(alignment["residual"], 6),  # RMS over the inliers, A's units (m unless mono)
     }
     log.info("merge: %d/%d B keyframes verified, %d agree; scale %.4f; %d points fused, %d covisibility links "
              "across the seam", len(matches), len(map_b.keyframes), len(group), scale, fused, cross)
@@ -348,6 +366,20 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
 
 
 # ============================================================================ paths
+def _merge_figure(path: Path, result: MergeResult, sensor: str) -> None:
+    """``merge.png`` (:func:`vslam.reconstruction.merge_figure.plot_merge`); a failure is a warning."""
+    from vslam.reconstruction.merge_figure import plot_merge
+
+    s = result.stats
+    try:
+        plot_merge(path, result.map, s["keyframe_id_offset"], s["seam"],
+                   {"inliers": s["alignment_inliers"], "residual": s["alignment_residual"]},
+                   unit="map A units" if sensor == "mono" else "m")
+        s["figure"] = str(path)
+    except Exception as exc:  # noqa: BLE001 - a plot never fails a finished merge
+        log.warning("%s not written (%s: %s)", path, type(exc).__name__, exc)
+
+
 def _load(path: Path, what: str):
     from vslam.map.io import load_run_map
 
@@ -363,17 +395,22 @@ def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config
     :class:`MergeError` (no overlap), :class:`OutputError` (output folder unusable).
     """
     from vslam.api import resolve_config
-    from vslam.outputs import atomic_path, open_run_dir
+    from vslam.outputs import atomic_path, open_run_dir, refuse_inputs, same_path
     from vslam.reconstruction.map_outputs import write_map_outputs
-    from vslam.runner import write_stats
+    from vslam.runner import error_stats_when_stopped, write_error_stats, write_stats
     from vslam.trajectory import Trajectory, write_tum
 
     a, b, out = Path(map_a), Path(map_b), Path(output)
+    refuse_inputs(out, (a, b, a / "map", b / "map"), "merged map")  # before the maps are read
+    if same_path(a, b) or same_path(a / "map", b / "map"):
+        raise MergeError(f"{b}: is the same map as {a}; merge two different maps")
     if config is None and (a / "config.yaml").is_file():
         config = a / "config.yaml"
-    cfg = resolve_config(config, list(overrides))
-    map_A, db_A, cam_A, meta_A = _load(a, "A")
-    map_B, db_B, cam_B, meta_B = _load(b, "B")
+    inputs, paths = (a, b, a / "map", b / "map"), {"map_a": str(a.resolve()), "map_b": str(b.resolve())}
+    with error_stats_when_stopped(out, inputs, paths):  # a SIGTERM while the maps load: stats.json says so
+        cfg = resolve_config(config, list(overrides))
+        map_A, db_A, cam_A, meta_A = _load(a, "A")
+        map_B, db_B, cam_B, meta_B = _load(b, "B")
     sensor = meta_A.get("sensor")
     if sensor != meta_B.get("sensor") or sensor not in ("mono", "stereo", "rgbd"):
         raise MapFormatError(f"cannot merge a {meta_A.get('sensor')!r} map ({a}) with a {meta_B.get('sensor')!r} "
@@ -384,7 +421,7 @@ def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config
                               or cam_A.height != cam_B.height):
         raise MapFormatError(f"cannot merge maps of different cameras: {a} has fx {cam_A.fx:.1f} {cam_A.width}x"
                              f"{cam_A.height}, {b} fx {cam_B.fx:.1f} {cam_B.width}x{cam_B.height}")
-    run_dir = open_run_dir(out, inputs=(a, b, a / "map", b / "map"))
+    run_dir = open_run_dir(out, inputs=inputs)
     try:
         result = merge_maps(map_A, db_A, map_B, db_B, cam_A, sensor, cfg,
                             options=options, source_b=str(b.resolve()))
@@ -400,13 +437,15 @@ def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config
         traj = Trajectory(np.array([k.timestamp for k in kfs], float), np.stack([k.T_world_cam for k in kfs]))
         with atomic_path(out / "keyframes.txt") as tmp:
             write_tum(tmp, traj)
+        _merge_figure(out / "merge.png", result, sensor)
         if isinstance(config, (str, Path)) and Path(config).is_file():
             with atomic_path(out / "config.yaml") as tmp:
                 shutil.copyfile(config, tmp)
-        result.stats.update({"map_a": str(a.resolve()), "map_b": str(b.resolve()), "sensor": sensor,
-                             "good_keyframes": len(kfs), "points": int(merged.points.n_alive)})
+        result.stats.update({**paths, "sensor": sensor, "good_keyframes": len(kfs),
+                             "points": int(merged.points.n_alive)})
         write_stats(out, result.stats)
-    except BaseException:
+    except BaseException as exc:  # stopped (SIGTERM, Ctrl-C) or failed: stats.json with the error, as a run's
+        write_error_stats(out, exc, {**paths, "sensor": sensor})
         run_dir.release()
         raise
     run_dir.finish()

@@ -63,6 +63,36 @@ def write_stats(out_dir: Path, stats: dict) -> None:
     _write_json(Path(out_dir) / "stats.json", stats)
 
 
+def write_error_stats(out_dir: Path, exc: BaseException, stats: dict) -> None:
+    """``out_dir/stats.json`` with ``stats`` and the ``error`` of a command that was stopped (SIGTERM,
+    Ctrl-C: ``terminated (SIGTERM)``, ``interrupted``) or failed, as a stopped run's; a failure to
+    write it is logged (the command's own error is the one to report)."""
+    error = interrupt_reason(exc) if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+    try:
+        write_stats(out_dir, {**stats, "error": error})
+    except Exception as write_exc:  # noqa: BLE001 - never mask the command's own error
+        log.error("%s", write_exc)
+
+
+@contextmanager
+def error_stats_when_stopped(out_dir: str | Path | None, inputs: tuple[str | Path, ...], stats: dict) -> Iterator[None]:
+    """Around what a command does before its run folder is open (reading a map, building the
+    configuration): a SIGTERM or Ctrl-C there still leaves ``out_dir/stats.json`` with its ``error``;
+    the folder is opened then (locked, a previous run moved aside, as :func:`open_run_dir`)."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        if out_dir is not None:
+            try:
+                run_dir = open_run_dir(Path(out_dir), inputs)
+            except OutputError as open_exc:
+                log.error("%s", open_exc)
+            else:
+                write_error_stats(Path(out_dir), exc, stats)
+                run_dir.release()
+        raise
+
+
 def _write_json(path: Path, data: dict) -> None:
     atomic_write_text(path, json.dumps(data, indent=2, default=_json_default))
 
@@ -254,12 +284,18 @@ def _run(tracker: FrameTracker, frames: Iterable[Any], spec: _RunSpec, out: Path
         error = f"{type(exc).__name__}: {exc}"
         raise
     finally:
-        source.close()  # stops the decoding thread (a no-op once the frames are exhausted)
+        stopped = None
+        try:
+            source.close()  # stops the decoding thread (a no-op once the frames are exhausted)
+        except KeyboardInterrupt as exc:  # stopped right after the last frame: still concluded below
+            stopped, error = exc, error or interrupt_reason(exc)
         wall = time.perf_counter() - t_start
         if traj_file is not None:
             traj_file.close()
-        stats, trajectory, output_error = _conclude(tracker, counts.summary(wall, mode, error is None, spec.total),
-                                                    error, spec, out)
+        stats, trajectory, output_error, stopped_writing = _conclude(
+            tracker, counts.summary(wall, mode, error is None, spec.total), error, spec, out)
+        if stopped or stopped_writing:
+            raise stopped or stopped_writing
     if output_error is not None:
         raise OutputError(output_error)
     return RunResult(stats=stats, trajectory=trajectory, output_dir=out)
@@ -323,33 +359,68 @@ def _drive(tracker: FrameTracker, source: Iterator[Any], counts: _Counts, traj_f
 
 
 def _conclude(tracker: FrameTracker, stats: dict, error: str | None, spec: _RunSpec,
-              out: Path | None) -> tuple[dict, Trajectory, str | None]:
+              out: Path | None) -> tuple[dict, Trajectory, str | None, KeyboardInterrupt | None]:
     """Complete the run's ``stats`` (the tracker's, the extra ones, ATE/RPE), write the final
-    outputs and ``stats.json``. Returns the stats, the final trajectory and the first output
-    failure as one line (or None)."""
+    outputs and ``stats.json``. Returns the stats, the final trajectory, the first output failure
+    as one line (or None), and the SIGTERM / Ctrl-C that stopped the writing (or None: then
+    ``stats.json`` has its ``error``, so a stopped run never leaves outputs without a stats.json)."""
     trajectory = Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-    if error is None:
-        trajectory = tracker.trajectory()
-        # frames posed after the fact (seen before a monocular initialization) count as tracked
-        stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
+    output_error, stopped = None, None
+    try:
+        if error is None:
+            trajectory = tracker.trajectory()
+            # frames posed after the fact (seen before a monocular initialization) count as tracked
+            stats["tracked"] = max(int(stats["tracked"]), len(trajectory))
+        _tracker_stats(tracker, stats, spec.extra_stats)
+        if error is None:
+            if out is not None:
+                output_error = _write_outputs(tracker, out, trajectory, stats, spec.extra_stats, spec.progress)
+            if spec.ground_truth is not None and len(trajectory) >= 3:
+                stats.update(trajectory_errors(trajectory, spec.ground_truth, spec.align))
+    except KeyboardInterrupt as exc:  # stopped while the outputs were written: stats.json says so
+        stopped, error = exc, interrupt_reason(exc)
+    if error is not None:
+        stats["error"] = error
+    if out is not None:
+        with _signals_deferred():  # stats.json is never cut short by a signal
+            output_error = _write_final_stats(out, stats, error, output_error)
+    return stats, trajectory, output_error, stopped
+
+
+def _tracker_stats(tracker: FrameTracker, stats: dict, extra_stats: dict | None) -> None:
+    """Add the tracker's own stats and the extra ones to ``stats``."""
     try:
         stats.update(tracker.stats())
     except Exception:  # never lose the run summary because of a stats failure
         log.exception("collecting the tracker's stats failed")
     stats.setdefault("loops", [])
-    if spec.extra_stats:
-        stats.update(spec.extra_stats)
-    if error is not None:
-        stats["error"] = error
-    output_error = None
-    if error is None:
-        if out is not None:
-            output_error = _write_outputs(tracker, out, trajectory, stats, spec.extra_stats, spec.progress)
-        if spec.ground_truth is not None and len(trajectory) >= 3:
-            stats.update(trajectory_errors(trajectory, spec.ground_truth, spec.align))
-    if out is not None:
-        output_error = _write_final_stats(out, stats, error, output_error)
-    return stats, trajectory, output_error
+    if extra_stats:
+        stats.update(extra_stats)
+
+
+@contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """SIGINT / SIGTERM / SIGHUP arriving inside the block take effect (their Python handler runs)
+    when it ends; only in the main thread and for Python handlers (others are left alone)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[tuple[int, Any]] = []
+    saved: dict = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None and callable(signal.getsignal(sig)):
+            saved[sig] = signal.signal(sig, lambda signum, frame: caught.append((signum, frame)))
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+        if caught:
+            saved[caught[0][0]](*caught[0])
 
 
 def _write_final_stats(out: Path, stats: dict, error: str | None, output_error: str | None) -> str | None:

@@ -27,13 +27,19 @@ Compiled kernels: the first call of a cached numba kernel in a process loads its
 calls :func:`warm_kernels` when it is built: every module of :data:`KERNEL_MODULES` gets its
 ``warm()`` called (each kernel once on tiny inputs), and the time that took is reported as
 ``stats.json`` ``startup_ms.kernels`` (start-up work, like the imports, before the run's clock).
+The first run after an install compiles them instead (~30 s): :func:`kernels_cold` tells so from
+numba's cache files, and :func:`compile_notice` lets the CLI say it before it happens.
 """
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import logging
+import os
 import time
-from typing import Any, Protocol, runtime_checkable
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, Iterator, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -84,6 +90,81 @@ class FrameTracker(Protocol):
     def stats(self) -> dict: ...
 
 
+#: called (no arguments) just before :func:`warm_kernels` compiles: see :func:`compile_notice`
+_compile_listeners: list[Callable[[], None]] = []
+
+
+@contextmanager
+def compile_notice(callback: Callable[[], None]) -> Iterator[None]:
+    """Inside the block, ``callback()`` runs once before kernels are warmed from a cold cache
+    (:func:`kernels_cold`: a fresh install, ~30 s of compiling): the CLI prints its line there,
+    when a tracker is about to be built, after the inputs were checked."""
+    _compile_listeners.append(callback)
+    try:
+        yield
+    finally:
+        if callback in _compile_listeners:
+            _compile_listeners.remove(callback)
+
+
+def kernels_cold(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
+    """True when some module of ``modules`` has no fresh numba cache, so that warming it compiles
+    (~30 s for all of them on a fresh install). Cheap (no numba or kernel import, a few small
+    files read): a module counts as cached when one of its ``<module>.*.nbi`` cache indexes, in
+    the directories numba's cache locators use (``$NUMBA_CACHE_DIR``, else ``__pycache__`` beside
+    the source and the user-wide cache), is of the installed numba and holds the source's hash
+    (numba's staleness test)."""
+    try:
+        from importlib.metadata import version
+
+        numba_version = version("numba")
+    except Exception:  # noqa: BLE001 - no numba metadata: nothing to say
+        return False
+    return any(not _cached(source, numba_version) for source in map(_module_source, modules) if source is not None)
+
+
+def _module_source(name: str) -> Path | None:
+    """The source file of module ``name`` without importing it (nor, for ``vslam.*``, its package)."""
+    if name.startswith("vslam."):
+        path = Path(__file__).parent.joinpath(*name.split(".")[1:]).with_suffix(".py")  # as numba sees it
+        return path if path.is_file() else None
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+
+
+def _cache_dirs(source: Path) -> list[Path]:
+    """Where numba caches the functions of ``source`` (``numba.core.caching``'s locators)."""
+    import hashlib
+
+    sub = f"{source.parent.name}_{hashlib.sha1(str(source.parent).encode()).hexdigest()}"
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return [Path(os.environ["NUMBA_CACHE_DIR"]) / sub]
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"
+    return [source.parent / "__pycache__", user / sub]
+
+
+def _cached(source: Path, numba_version: str) -> bool:
+    """Whether a cache index of ``source``'s kernels is fresh (see :func:`kernels_cold`)."""
+    import hashlib
+    import pickle
+    import sys
+
+    digest = hashlib.sha256(source.read_bytes()).digest()
+    tag = f"py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}.nbi"
+    for folder in _cache_dirs(source):
+        for index in folder.glob(f"{source.stem}.*.{tag}") if folder.is_dir() else ():
+            try:
+                with open(index, "rb") as f:
+                    if pickle.load(f) == numba_version and digest in f.read():
+                        return True
+            except Exception:  # noqa: BLE001 - an unreadable index is no cache
+                continue
+    return False
+
+
 def warm_kernels(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     """Import ``modules`` and call each one's ``warm()``; returns the milliseconds it took. A module
     that fails to warm is logged and skipped (its kernels then load at their first real call).
@@ -91,6 +172,10 @@ def warm_kernels(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     In this thread, not a background one: measured on the 9-frame fr1 desk run, the 0.15 s it
     takes alone became 0.6-1.3 s in a thread beside the System's construction and the first
     frames (the two threads compete for the GIL) and slowed those frames down."""
+    if _compile_listeners and kernels_cold(modules):
+        for callback in list(_compile_listeners):
+            callback()
+        _compile_listeners.clear()  # once per process: the next tracker finds them compiled
     t0 = time.perf_counter()
     announced = False
     for name in modules:

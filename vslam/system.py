@@ -42,29 +42,38 @@ class TrackResult:
     frame_index: int
     timestamp: float
     T_world_cam: np.ndarray | None  # None when lost or still initializing
-    state: str  # "ok" | "lost" | "initializing"
+    state: str  # "ok" | "lost" | "initializing" | "imu" (inertial: posed by the IMU alone, vision failed)
     is_keyframe: bool
     n_inliers: int
 
 
 class System:
-    """Visual SLAM / odometry for one camera (``mono``, ``stereo`` or ``rgbd``).
+    """Visual SLAM / odometry for one camera (``mono``, ``stereo`` or ``rgbd``), or visual-inertial
+    (``mono-inertial``, ``stereo-inertial``, ``rgbd-inertial``: the visual part runs as the base sensor;
+    the IMU is initialized on the map's keyframes, the world then gravity-aligned, z up, and metric,
+    and it predicts each frame's pose; see :meth:`_inertial_step`).
 
     Args:
         config: the root :class:`vslam.config.Config` (its ``frontend`` and ``features`` fields are
             used), or a :class:`FrontendConfig`, or None for defaults.
         camera: intrinsics of the (left) images.
-        sensor: ``mono``, ``stereo`` or ``rgbd``.
+        sensor: ``mono``, ``stereo``, ``rgbd`` or one of them with ``-inertial``.
         features: a :class:`FeatureConfig` when ``config`` is not a root config.
         slam_map: a map to build on (see :meth:`from_map`); default a new, empty one.
+        imu, imu_calibration: the IMU samples (:class:`vslam.inertial.ImuMeasurements`) and their
+            calibration (``T_imu_cam`` of the tracked camera); required by the inertial sensors.
     """
 
     def __init__(self, config: Any = None, camera: PinholeCamera | None = None, sensor: str = "mono",
-                 features: FeatureConfig | None = None, slam_map: Map | None = None) -> None:
+                 features: FeatureConfig | None = None, slam_map: Map | None = None,
+                 imu: Any = None, imu_calibration: Any = None) -> None:
         if camera is None:
             from vslam.errors import CalibrationError
 
             raise CalibrationError("System needs the camera intrinsics (a PinholeCamera)")
+        from vslam.inertial.sensors import split_sensor
+
+        base_sensor, inertial = split_sensor(sensor)
         self._kernels_ms = warm_kernels()  # the compiled kernels loaded now, not in the first frames
         if isinstance(config, FrontendConfig):
             fcfg = config
@@ -76,6 +85,8 @@ class System:
         self.feature_config = feat
         self.camera = camera
         self.sensor = sensor
+        self.base_sensor = base_sensor
+        sensor = base_sensor  # the stages see the visual sensor only
         self.map = slam_map if slam_map is not None else Map()
         self._kf_listeners: list[Callable[[KeyFrame], None]] = []
         self.tracker = Tracker(fcfg, feat, camera, sensor, self.map, on_keyframe=self._on_keyframe)
@@ -83,6 +94,9 @@ class System:
         if self.local_mapper is not None:  # RGB-D dense alignments as local-BA constraints (frontend.dense.links)
             self.local_mapper.dense_links = self.tracker.dense_links
         self._init_loop(getattr(config, "loop", None), camera, sensor, feat)
+        self.inertial = None
+        if inertial:
+            self._init_inertial(imu, imu_calibration)
         # per tracked frame: timestamp, reference keyframe id or -1, T_world_cam as tracked, and the
         # reference keyframe's pose at that time (identity without one); see frame_poses
         self._timestamps: list[float] = []
@@ -91,6 +105,7 @@ class System:
         self._T_ref_rec: list[np.ndarray] = []
         self._kf_inserted: dict[int, np.ndarray] = {}  # each keyframe's pose at insertion (frame_poses)
         self._n = {"frames": 0, "ok": 0, "lost": 0, "initializing": 0}
+        self._imu_rows: list[list[float]] = []  # imu_states.csv (vslam.inertial.states_csv), from the IMU init on
         self._t_total = 0.0
         self._finished = False
 
@@ -193,6 +208,46 @@ class System:
         """The current keyframe moved: move the tracker's last poses with it (motion-model prediction)."""
         self.tracker.apply_correction(T_world_kf_after @ inv_se3(T_world_kf_before))
 
+    # ------------------------------------------------------------------ inertial (issue 28)
+    def _init_inertial(self, imu: Any, imu_calibration: Any) -> None:
+        """The IMU initialization on the keyframes (:class:`vslam.backend.inertial_mapping.InertialMapping`)."""
+        from vslam.backend.inertial_mapping import InertialMapping
+        from vslam.errors import DatasetError
+
+        if imu is None or imu_calibration is None:
+            missing = " and ".join(n for n, v in (("IMU samples", imu), ("IMU calibration", imu_calibration)) if v is None)
+            raise DatasetError(f"sensor {self.sensor} needs {missing}: a dataset with an IMU (EuRoC imu0/) or --imu FILE")
+        self.inertial = InertialMapping(imu, imu_calibration, monocular=self.base_sensor == "mono")
+
+    def _inertial_step(self, frame: Frame, out: Any) -> np.ndarray | None:
+        """After a keyframe, until the IMU is initialized: try it on the map's keyframes; on success the
+        map was moved by ``S`` (gravity-aligned z-up world, metric scale); move the tracker, the
+        trajectory recorded so far and the keyframes' insertion poses with it, and start the IMU
+        prediction from the newest keyframe with its estimated velocity and the biases. Returns ``S``
+        when the map moved now, else None."""
+        from vslam.frontend.imu_prediction import ImuPredictor
+        from vslam.map.segment_merge import move_pose
+
+        im = self.inertial
+        if im.initialized or not out.is_keyframe or out.state != "ok":
+            return None
+        with self._map_lock:
+            start = im.try_initialize(self.map, self.tracker.segment, frame.index, frame.timestamp)
+            if start is None:
+                return None
+            S = start.S
+            self.tracker.move_world(S)
+            self._T_rec = [move_pose(S, T) for T in self._T_rec]
+            self._T_ref_rec = [move_pose(S, T) if r >= 0 else T for T, r in zip(self._T_ref_rec, self._ref)]
+            self._kf_inserted = {k: move_pose(S, T) for k, T in self._kf_inserted.items()}
+            res = start.result
+            kf = max((k for k in self.map.keyframes.values() if k.segment == self.tracker.segment and not k.bad),
+                     key=lambda k: k.timestamp)
+            k = int(np.argmin(np.abs(res.timestamps - kf.timestamp)))
+            self.tracker.set_imu_predictor(ImuPredictor(im.imu, im.calib, res.bias, kf.timestamp, kf.T_world_cam,
+                                                        res.velocities[k]))
+        return S
+
     # ------------------------------------------------------------------ streaming
     def prepare(self, frame: Frame) -> None:
         """Optional, from another thread ahead of :meth:`track`: the work on ``frame`` that needs no
@@ -232,7 +287,22 @@ class System:
             self.local_mapper.after_frame()
         if self.loop_closer is not None:  # deterministic loop closing, after local mapping
             self.loop_closer.after_frame()
+        if self.inertial is not None:
+            S = self._inertial_step(frame, out)
+            if S is not None and T_out is not None:  # this frame's pose in the gravity-aligned world too
+                from vslam.map.segment_merge import move_pose
+
+                T_out = move_pose(S, T_out)
+            if T_out is not None:
+                self._record_imu_state(frame.timestamp, out.state == "imu")
         return TrackResult(frame.index, frame.timestamp, T_out, out.state, out.is_keyframe, out.n_inliers)
+
+    def _record_imu_state(self, timestamp: float, imu_only: bool) -> None:
+        """A row of ``imu_states.csv``: the IMU velocity at this frame and the biases (once predicting)."""
+        p = self.tracker.imu_predictor
+        v = p.velocity_at(timestamp) if p is not None and p.active else None
+        if v is not None:
+            self._imu_rows.append([timestamp, *v, *p.bias.gyro, *p.bias.accel, int(imu_only)])
 
     def save_map_outputs(self, directory: str | Path, metadata: dict | None = None, progress: Any = None) -> dict:
         """Write the sparse map (``sparse.ply``), the topological map (``topology.json``/``.png``)
@@ -243,10 +313,15 @@ class System:
         lc = self.loop_closer
         loops_kf = [(r.query_kf, r.match_kf, r.inliers) for r in lc.loops] if lc is not None else []
         with self._map_lock:
-            return write_map_outputs(directory, self.map, camera=self.camera,
-                                     database=lc.database if lc is not None else None,
-                                     loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})},
-                                     progress=progress)
+            written = write_map_outputs(directory, self.map, camera=self.camera,
+                                        database=lc.database if lc is not None else None,
+                                        loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})},
+                                        progress=progress)
+        if self._imu_rows:  # inertial runs: the velocity and biases per frame (vslam report plots them)
+            from vslam.inertial.states_csv import write_imu_states
+
+            written["imu_states"] = str(write_imu_states(Path(directory) / "imu_states.csv", self._imu_rows))
+        return written
 
     def _color_new_points(self, frame: Frame) -> None:
         """Give the newest keyframe's not yet coloured map points the colour of this frame's image
@@ -323,6 +398,18 @@ class System:
         keep[1:] = np.diff(ts) > 0
         return Trajectory(ts[keep], np.stack([k.T_world_cam for k in kfs])[keep])
 
+    def _loaded_map_stats(self) -> dict:
+        """Continuing a loaded map (:meth:`from_map`): its folder (``map_loaded``, set by the caller
+        that read it), its keyframes, and the frame first placed in
+        it (``placed_at_frame``; None: none was, the session started its own segment), the map
+        keyframe it was placed against and the inliers."""
+        if getattr(self, "loaded_keyframes", None) is None:
+            return {}
+        placed = self.tracker.placed
+        return {"map_loaded": getattr(self, "map_loaded", None), "map_keyframes_loaded": self.loaded_keyframes,
+                "placed_at_frame": placed[0] if placed else None,
+                "placed_keyframe": placed[1] if placed else None, "placed_inliers": placed[2] if placed else None}
+
     def stats(self) -> dict:
         n = max(self._n["frames"], 1)
         stage_ms = {k: round(1000.0 * v / n, 3) for k, v in self.tracker.timers.items()}
@@ -333,7 +420,12 @@ class System:
             stage_ms["local_ba"] = backend["local_ba_ms_mean"]  # mean ms per local BA call (not per frame)
         elif self.filter_backend is not None:
             backend = self.filter_backend.stats()
+        inertial = {} if self.inertial is None else {
+            **self.inertial.stats(),
+            "imu_predicted_frames": getattr(self.tracker.imu_predictor, "n_predicted", 0),
+            "imu_only_frames": self.tracker.n_imu_only}
         return {
+            **inertial,
             "keyframes": self.map.n_keyframes,
             "map_points": self.map.n_points,
             "loops": self.loop_closer.loop_list() if self.loop_closer is not None else [],
@@ -343,6 +435,7 @@ class System:
             "map_segments": self.tracker.segment + 1,  # segments started (joins do not lower it)
             "segments": len({k.segment for k in self.map.keyframes.values()}),
             "merges": [m.to_json() for m in self.loop_closer.merges] if self.loop_closer is not None else [],
+            **self._loaded_map_stats(),
             "relocalizations": self.tracker.n_relocalized,
             "depth_bridged": self.tracker.n_depth_bridged,
             "depth_refined": self.tracker.n_depth_refined,

@@ -7,11 +7,14 @@
   columns ignored).
 
 Every reader checks the file exists, has poses, has the right number of finite numbers on each
-line, valid (non-zero) quaternions, and strictly increasing timestamps; otherwise it raises
-:class:`~vslam.errors.TrajectoryError` naming the file, the line and what to fix.
+line, valid (non-zero) quaternions, strictly increasing timestamps, and magnitudes that float64
+arithmetic can square and sum (coordinates within :data:`MAX_COORDINATE` metres, timestamps within
+:data:`MAX_TIMESTAMP`); otherwise it raises :class:`~vslam.errors.TrajectoryError` naming the file,
+the line and what to fix.
 """
 from __future__ import annotations
 
+import io
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +28,11 @@ from vslam.textfile import open_text
 log = logging.getLogger(__name__)
 
 FORMATS = ("tum", "kitti", "euroc")
+#: |coordinate| above this (metres, a light-hour) is no trajectory: its squares and sums lose every
+#: digit of a metre, and 1e200 overflows to inf in an RMSE
+MAX_COORDINATE = 1e12
+#: |timestamp| above this (seconds, or EuRoC's nanoseconds: 1e19 ns is the year 2286)
+MAX_TIMESTAMP = 1e19
 
 
 @dataclass
@@ -155,16 +163,29 @@ def _load_numeric(path: Path, delimiter: str | None, what: str) -> tuple[np.ndar
     return np.array(rows, dtype=float), np.array(linenos)
 
 
+def _check_magnitude(values: np.ndarray, limit: float, what: str, path: Path, linenos: np.ndarray | None) -> None:
+    """Raise naming the first line whose ``values`` row (or value) exceeds ``limit`` in magnitude."""
+    values = np.abs(np.asarray(values, dtype=float))
+    bad = values.reshape(len(values), -1).max(axis=1) > limit if len(values) else np.zeros(0, bool)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        line = int(linenos[i]) if linenos is not None else i + 1
+        raise TrajectoryError(f"{path}:{line}: {what} of magnitude {float(values[i].max()):.3g} is implausible (at most "
+                              f"{limit:.0e}); fix the line or its units")
+
+
 def _check_sorted(
     ts: np.ndarray, path: Path, linenos: np.ndarray | None = None, duplicates: str = "error"
 ) -> np.ndarray:
-    """Raise unless ``ts`` is strictly increasing; returns the indices of the rows to keep.
+    """Raise unless ``ts`` is strictly increasing (and each within :data:`MAX_TIMESTAMP`); returns
+    the indices of the rows to keep.
 
     ``duplicates="keep_last"`` drops all but the last of equal timestamps (what the TUM
     benchmark tools do when they read a file into a dict), instead of raising.
     """
     if duplicates not in ("error", "keep_last"):
         raise TrajectoryError(f"duplicates must be 'error' or 'keep_last', got {duplicates!r}")
+    _check_magnitude(ts, MAX_TIMESTAMP, "a timestamp", path, linenos)
     d = np.diff(ts)
     line = (lambda i: int(linenos[i])) if linenos is not None else (lambda i: i + 1)
     if np.any(d < 0):
@@ -205,6 +226,7 @@ def read_tum(path: str | Path, duplicates: str = "error") -> Trajectory:
         )
     keep = _check_sorted(data[:, 0], path, linenos, duplicates)
     data, linenos = data[keep], linenos[keep]
+    _check_magnitude(data[:, 1:4], MAX_COORDINATE, "a position (metres)", path, linenos)
     T = np.tile(np.eye(4), (len(data), 1, 1))
     T[:, :3, :3] = _quats_to_matrices(data[:, 4:8], path, linenos)
     T[:, :3, 3] = data[:, 1:4]
@@ -219,11 +241,12 @@ def _writable(path: str | Path) -> Path:
 
 
 def write_tum(path: str | Path, traj: Trajectory) -> None:
+    """Write ``traj`` as a TUM file, atomically (:func:`vslam.outputs.atomic_write_text`)."""
+    from vslam.outputs import atomic_write_text
+
     rows = tum_rows_from_poses(traj.T_world_cam)
-    with open(_writable(path), "w") as fh:
-        fh.write("# timestamp tx ty tz qx qy qz qw\n")
-        for t, r in zip(traj.timestamps, rows):
-            fh.write(format_tum_line(t, r))
+    lines = ["# timestamp tx ty tz qx qy qz qw\n"] + [format_tum_line(t, r) for t, r in zip(traj.timestamps, rows)]
+    atomic_write_text(_writable(path), "".join(lines))
 
 
 def format_tum_line(timestamp: float, row: np.ndarray) -> str:
@@ -246,6 +269,7 @@ def read_kitti(
             f"{path}: KITTI lines need 12 numbers (3x4 row-major), found {data.shape[1]}"
             + ("; this looks like a TUM file (use the tum format)" if data.shape[1] == 8 else "")
         )
+    _check_magnitude(data, MAX_COORDINATE, "a pose entry (metres)", path, linenos)
     T = np.tile(np.eye(4), (len(data), 1, 1))
     T[:, :3, :4] = data.reshape(-1, 3, 4)
     if times is None:
@@ -267,9 +291,17 @@ def read_kitti(
 
 
 def write_kitti(path: str | Path, traj: Trajectory, times_path: str | Path | None = None) -> None:
-    np.savetxt(_writable(path), traj.T_world_cam[:, :3, :4].reshape(-1, 12), fmt="%.9e")
+    """Write ``traj`` as KITTI poses (and its times), atomically."""
+    from vslam.outputs import atomic_write_text
+
+    def text(array: np.ndarray, fmt: str) -> str:
+        buf = io.StringIO()
+        np.savetxt(buf, array, fmt=fmt)
+        return buf.getvalue()
+
+    atomic_write_text(_writable(path), text(traj.T_world_cam[:, :3, :4].reshape(-1, 12), "%.9e"))
     if times_path is not None:
-        np.savetxt(_writable(times_path), traj.timestamps, fmt="%.6f")
+        atomic_write_text(_writable(times_path), text(traj.timestamps, "%.6f"))
 
 
 def read_euroc(path: str | Path, duplicates: str = "error") -> Trajectory:
@@ -280,6 +312,7 @@ def read_euroc(path: str | Path, duplicates: str = "error") -> Trajectory:
         raise TrajectoryError(f"{path}: EuRoC CSV rows need >= 8 columns (t, p xyz, q wxyz), found {data.shape[1]}")
     keep = _check_sorted(data[:, 0], path, linenos, duplicates)
     data, linenos = data[keep], linenos[keep]
+    _check_magnitude(data[:, 1:4], MAX_COORDINATE, "a position (metres)", path, linenos)
     ts = data[:, 0] * 1e-9
     T = np.tile(np.eye(4), (len(data), 1, 1))
     T[:, :3, :3] = _quats_to_matrices(np.hstack([data[:, 5:8], data[:, 4:5]]), path, linenos)
@@ -288,12 +321,15 @@ def read_euroc(path: str | Path, duplicates: str = "error") -> Trajectory:
 
 
 def write_euroc(path: str | Path, traj: Trajectory) -> None:
+    """Write ``traj`` as a EuRoC CSV, atomically."""
+    from vslam.outputs import atomic_write_text
+
     rows = tum_rows_from_poses(traj.T_world_cam)
-    with open(_writable(path), "w") as fh:
-        fh.write("#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n")
-        for t, r in zip(traj.timestamps, rows):
-            vals = [r[0], r[1], r[2], r[6], r[3], r[4], r[5]]
-            fh.write(f"{int(round(t * 1e9))}," + ",".join(f"{v:.9f}" for v in vals) + "\n")
+    lines = ["#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n"]
+    for t, r in zip(traj.timestamps, rows):
+        vals = [r[0], r[1], r[2], r[6], r[3], r[4], r[5]]
+        lines.append(f"{int(round(t * 1e9))}," + ",".join(f"{v:.9f}" for v in vals) + "\n")
+    atomic_write_text(_writable(path), "".join(lines))
 
 
 def detect_format(path: str | Path) -> str:

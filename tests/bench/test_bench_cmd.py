@@ -10,6 +10,7 @@ def test_bench_dry_run_writes_results_and_reports_progress(tmp_path, capsys):
     spec = tmp_path / "spec.yaml"
     spec.write_text("repeats: 2\nruns:\n  - {name: r1, data: somewhere, set: {fake.fps: 20}}\n"
                     "  - {name: r2, data: somewhere, repeats: 1, set: {fake.fail: true}}\n")
+    (tmp_path / "somewhere").mkdir()  # the dry run checks the data paths as the real run does
     out = tmp_path / "out"
     rc = main(["bench", str(spec), "--output", str(out), "--dry-run", "--workers", "0",
                "--no-plots"])
@@ -30,6 +31,9 @@ def test_bench_cli_errors_are_one_line(tmp_path, capsys, monkeypatch):
     assert main(["bench", str(spec), "--output", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "vslam bench: error:" in err and "missing_folder does not exist" in err
+    assert main(["bench", str(spec), "--output", str(tmp_path / "o"), "--dry-run"]) == 2  # checked the same way
+    assert "missing_folder does not exist" in capsys.readouterr().err
+    (tmp_path / "missing_folder").mkdir()
     assert main(["bench", str(spec), "--output", str(tmp_path / "o"), "--dry-run", "--address", "x:1"]) == 2
     assert "--address is for --executor ray" in capsys.readouterr().err
     assert main(["bench", str(spec), "--output", str(tmp_path / "o"), "--dry-run", "--baseline", "orbslam3"]) == 2

@@ -148,3 +148,14 @@ def test_real_pipeline_end_to_end(tmp_path, shared_data):
     assert row["ate_rmse"] is not None and row["ate_rmse"] < 0.05
     assert row["frame_rate"] == pytest.approx(29.85, abs=0.05)
     assert row["realtime_factor"] == pytest.approx(row["fps"] / row["frame_rate"], rel=1e-2)
+
+
+@pytest.mark.shared
+def test_sensor_frame_rate_of_an_inertial_run_is_its_images_rate(shared_data):
+    """The 'x real time' column: an inertial run's rate is its cameras' (EuRoC 20 Hz), as its base sensor's."""
+    from vslam.bench.harness import sensor_frame_rate
+    from vslam.bench.spec import RunSpec
+
+    run = RunSpec(name="vi", data=shared_data / "euroc_mh01_vi_80", sensor="stereo-inertial")
+    assert sensor_frame_rate(run, "stereo-inertial") == pytest.approx(20.0, rel=0.01)
+    assert sensor_frame_rate(run, "stereo-inertial") == sensor_frame_rate(run, "stereo")

@@ -114,3 +114,12 @@ def test_shipped_specs_cover_every_shared_sequence(shared_data, monkeypatch):
     assert {r.sensor for r in starts.runs} == {"mono"} and len(starts.runs) == 10 and starts.runs[1].start_frame == 3
     smoke = load_spec(REPO / "benchmarks" / "smoke.yaml", check_paths=True)
     assert 1 <= len(smoke.runs) <= 4 and smoke.n_jobs <= 8
+
+
+def test_inertial_sensors_are_accepted(tmp_path):
+    spec = parse_spec({"runs": [{"name": "vi", "data": str(tmp_path), "sensor": "mono-inertial"}]}, tmp_path)
+    assert spec.runs[0].sensor == "mono-inertial"
+    with pytest.raises(ConfigError, match="stereo-inertial"):  # the message lists the inertial ones too
+        parse_spec({"runs": [{"name": "x", "data": str(tmp_path), "sensor": "lidar"}]}, tmp_path)
+    vi = load_spec(REPO / "benchmarks" / "inertial.yaml")
+    assert {r.sensor for r in vi.runs} == {"stereo", "stereo-inertial", "mono", "mono-inertial"}

@@ -226,10 +226,10 @@ def test_atomic_write_keeps_the_old_file(tmp_path, monkeypatch):
     path = tmp_path / "stats.json"
     path.write_text("old")
 
-    def full(self, *a, **k):
+    def full(fd, data):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(Path, "write_text", full)
+    monkeypatch.setattr("vslam.outputs._raw_write", full)
     with pytest.raises(OutputError, match="stats.json: cannot write"):
         atomic_write_text(path, "new")
     monkeypatch.undo()
@@ -402,6 +402,9 @@ SKIPPED_FRAME = {
     "wrong image size": lambda seq: cv2.imwrite(str(_rgb(seq, 4)), np.zeros((40, 30, 3), np.uint8)),
     "RGBA wrong size": lambda seq: cv2.imwrite(str(_rgb(seq, 4)), np.zeros((240, 319, 4), np.uint8)),
     "wrong depth size": lambda seq: cv2.imwrite(str(_depth(seq, 4)), np.zeros((24, 32), np.uint16)),
+    "float32 TIFF depth": lambda seq: _depth(seq, 4).write_bytes(
+        cv2.imencode(".tiff", np.ones((240, 320), np.float32))[1].tobytes()),
+    "8-bit depth frame": lambda seq: cv2.imwrite(str(_depth(seq, 4)), np.full((240, 320), 100, np.uint8)),
     "30000x30000 header": lambda seq: _rgb(seq, 4).write_bytes(_png_of_size(30000, 30000)),
     "missing file": lambda seq: _rgb(seq, 4).unlink(),
 }
@@ -416,6 +419,7 @@ def test_a_bad_frame_is_skipped_and_counted(capsys, seq, tmp_path, case):
     s = stats_of(out)
     assert s["skipped_frames"] == 1 and s["frames"] == N - 1
     assert "1 skipped" in stdout
+    assert (out / "map" / "map.json").is_file() and s["keyframes"] >= 1  # the map is kept
 
 
 def test_huge_header_is_refused_before_decoding(tmp_path):

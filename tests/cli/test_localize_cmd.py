@@ -31,6 +31,10 @@ def test_localize_writes_trajectory_and_stats(small_map, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "8/8 frames localized" in text and "ATE RMSE" in text
     stats = json.loads((out / "stats.json").read_text())
+    # one set of counts, the same in the summary line and stats.json: localized = tracked + relocalized
+    line = text.splitlines()[0]
+    assert line.startswith(f"8/8 frames localized (100.0 %: {stats['tracked']} tracked + "
+                           f"{stats['relocalizations']} relocalized), 0 lost, ") and str(run.resolve()) in line
     assert stats["frames"] == 8 and stats["localized"] == 8 and stats["lost"] == 0
     assert stats["relocalizations"] >= 1 and stats["tracked"] + stats["relocalizations"] == 8
     assert stats["ate_rmse"] < 0.03 and stats["matched_poses"] == 8
@@ -89,3 +93,28 @@ def test_interrupted_localize_keeps_the_poses_so_far_and_says_so(small_map, tmp_
     assert "ate_rmse" not in stats
     lines = (out / "trajectory.txt").read_text().splitlines()
     assert lines[0].startswith("#") and len(lines) == 4 and all(len(ln.split()) == 8 for ln in lines[1:])
+
+
+def test_localize_names_its_ground_truth_and_takes_gt(small_map, tmp_path, capsys):
+    """stats.json and the summary line name the ground truth; --gt FILE chooses another, --gt none none."""
+    from vslam.trajectory import Trajectory, write_tum
+
+    seq, run = small_map
+    args = ["localize", str(run), str(seq), "--start-frame", "8", "--max-frames", "4", "--no-progress",
+            "--set", "localize.min_inliers=25"]
+    assert main(args + ["-o", str(tmp_path / "own")]) == 0
+    own = json.loads((tmp_path / "own" / "stats.json").read_text())
+    assert own["gt_file"] == str((seq / "groundtruth.txt").resolve()) and own["gt_frame"] == "rgb"
+    assert f"ground truth {own['gt_file']}, frame rgb" in capsys.readouterr().out
+    gt = read_tum(seq / "groundtruth.txt")
+    T = gt.T_world_cam.copy()
+    T[:, 0, 3] += np.where(np.arange(len(T)) % 2, 0.2, -0.2)  # +-20 cm across the path
+    other = tmp_path / "other.txt"
+    write_tum(other, Trajectory(gt.timestamps, T))
+    assert main(args + ["-o", str(tmp_path / "other"), "--gt", str(other)]) == 0
+    chosen = json.loads((tmp_path / "other" / "stats.json").read_text())
+    assert chosen["gt_file"] == str(other) and chosen["gt_frame"] == "as given"
+    assert chosen["ate_rmse"] > 0.1 > own["ate_rmse"]
+    assert main(args + ["-o", str(tmp_path / "none"), "--gt", "none"]) == 0
+    none = json.loads((tmp_path / "none" / "stats.json").read_text())
+    assert none["gt_file"] is None and "ate_rmse" not in none

@@ -19,8 +19,9 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 
 def _write_bag(seq, out, ros1: bool, compressed: bool = False, depth_16u: bool = False, info: bool = True,
-               extra_topic: bool = False):
-    """A bag of the TUM sequence's associated rgb/depth pairs (header stamps = TUM timestamps)."""
+               extra_topic: bool = False, color_stamp=None):
+    """A bag of the TUM sequence's associated rgb/depth pairs (header stamps = TUM timestamps;
+    ``color_stamp(k, t)``: the k-th colour message's header stamp instead, recorded at ``t``)."""
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     T = ts.types
     Image, Cmp, Info = T["sensor_msgs/msg/Image"], T["sensor_msgs/msg/CompressedImage"], T["sensor_msgs/msg/CameraInfo"]
@@ -50,15 +51,16 @@ def _write_bag(seq, out, ros1: bool, compressed: bool = False, depth_16u: bool =
             c_x = w.add_connection("/camera/ir/image", Image.__msgtype__, typestore=ts)
         for k, (t_rgb, rgb, t_d, dep) in enumerate(rows):
             t_rgb, t_d = float(t_rgb), float(t_d)
+            t_head = color_stamp(k, t_rgb) if color_stamp else t_rgb
             bgr = cv2.imread(str(seq / rgb), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(seq / dep), cv2.IMREAD_UNCHANGED)
             h, w_ = bgr.shape[:2]
             if compressed:
-                msg = Cmp(header=header(t_rgb), format="bgr8; png compressed",
+                msg = Cmp(header=header(t_head), format="bgr8; png compressed",
                           data=np.frombuffer(cv2.imencode(".png", bgr)[1].tobytes(), np.uint8))
             else:
                 rgb8 = np.ascontiguousarray(bgr[:, :, ::-1])
-                msg = Image(header=header(t_rgb), height=h, width=w_, encoding="rgb8", is_bigendian=0, step=3 * w_,
+                msg = Image(header=header(t_head), height=h, width=w_, encoding="rgb8", is_bigendian=0, step=3 * w_,
                             data=rgb8.reshape(-1))
             bag_ns = int(t_rgb * 1e9) + 5_000_000  # received a little after the stamp
             w.write(c_col, bag_ns, ser(msg, ctype.__msgtype__))
@@ -137,3 +139,18 @@ def test_bag_topics_ambiguous_and_missing_info(fr1, tmp_path, capsys):
     assert ds.sensor == "rgbd" and ds.camera.fx == pytest.approx(517.306408)
     rc = main(["run", str(bag), "-o", str(tmp_path / "o"), "--topics", "/nope"])
     assert rc == 2 and "no image topic '/nope'" in capsys.readouterr().err
+
+
+def test_ground_truth_inside_the_bag_folder_wins(fr1, tmp_path, capsys):
+    """A ROS 2 bag folder with its own groundtruth.txt and a stray (garbage) one beside it: the one
+    inside is used and named; the stray one never stops the run."""
+    bag = _write_bag(fr1, tmp_path / "fr1_ros2", ros1=False)
+    (tmp_path / "groundtruth.txt").write_text("stray file, not a trajectory\n")
+    shutil.copy(fr1 / "groundtruth.txt", bag / "groundtruth.txt")
+    assert open_dataset(bag).ground_truth_file() == bag / "groundtruth.txt"
+    s = _run(bag, tmp_path / "out")
+    assert s["gt_file"] == str((bag / "groundtruth.txt").resolve()) and s["gt_frame"] == "camera"
+    assert s["matched_poses"] == 9 and s["ate_rmse"] == pytest.approx(0.0041, abs=3e-4)
+    (bag / "groundtruth.txt").unlink()  # only the stray one: skipped with a warning, the run goes on
+    s = _run(bag, tmp_path / "out2")
+    assert s["tracked"] == 9 and "ate_rmse" not in s and "not a number" in s["gt_problem"]

@@ -10,6 +10,8 @@ import pytest
 def evo(tmp_path_factory):
     """evo's ``core`` and ``file_interface`` modules; HOME points to a tmp folder so nothing is written
     outside it (evo keeps its settings in ``~/.evo``). Skips when evo is not installed."""
+    # HOME only while evo is imported (it reads its settings then): a HOME changed for the rest of the
+    # session broke later tests that read ~ (a local Ray's ~/.ray/auth_token)
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("HOME", str(tmp_path_factory.mktemp("evo_home")))
         pytest.importorskip("evo")
@@ -17,4 +19,4 @@ def evo(tmp_path_factory):
             name: importlib.import_module(f"evo.{name}")
             for name in ("core.sync", "core.metrics", "core.trajectory", "core.filters", "tools.file_interface")
         }
-        yield type("Evo", (), {k.split(".")[-1]: v for k, v in mods.items()})
+    return type("Evo", (), {k.split(".")[-1]: v for k, v in mods.items()})

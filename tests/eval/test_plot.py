@@ -34,3 +34,39 @@ def test_plot_writes_png(tmp_path):
     assert img.shape[1] > 1.8 * img.shape[0]  # two panels side by side
     with pytest.raises(TrajectoryError, match="does not exist"):
         plot_evaluation(res, tmp_path / "missing" / "eval.png")
+
+
+@pytest.mark.parametrize("align", ["sim3", "se3"])
+def test_titles_fit_inside_the_figure(tmp_path, monkeypatch, align):
+    """The panels' titles (the long Sim(3) note of a monocular run) and the figure's title (long
+    file names) are wrapped to fit: after drawing, each lies inside the figure and its title
+    inside its own panel's width."""
+    from matplotlib.figure import Figure
+
+    t = np.linspace(0, 10, 120)
+    T = np.tile(np.eye(4), (120, 1, 1))
+    T[:, :3, 3] = np.stack([np.cos(t), np.sin(t), 0.05 * t], 1)
+    est = T.copy()
+    est[:, :3, 3] = 2.5 * est[:, :3, 3] + np.random.default_rng(1).normal(0, 0.02, (120, 3))
+    res = evaluate_trajectories(Trajectory(t, est), Trajectory(t, T), align=align)
+    long_name = "rgbd_dataset_freiburg1_desk_validation_groundtruth_interpolated_for_every_frame_" * 2
+    figs = []
+    real_savefig = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **kw: (figs.append(self), real_savefig(self, *a, **kw))[1])
+    plot_evaluation(res, tmp_path / "eval.png", title=f"{long_name}.txt vs {long_name}_estimate.txt")
+    fig = figs[0]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    inside = fig.bbox.padded(0.5)
+    titles = [(ax.title, ax) for ax in fig.axes if ax.get_title()] + [(fig._suptitle, None)]
+    assert len(titles) == 3 and ("Sim(3)" in titles[1][0].get_text()) == (align == "sim3")
+    for text, ax in titles:
+        box = text.get_window_extent(renderer)
+        assert box.width > 0 and inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1), text.get_text()
+        if ax is not None:
+            assert box.width <= ax.get_window_extent(renderer).width + 1
+    # no two titles overlap, and the wrapped text keeps every character (a long name is broken, not cut)
+    boxes = [t.get_window_extent(renderer) for t, _ in titles]
+    assert not any(boxes[i].overlaps(boxes[j]) for i in range(3) for j in range(i + 1, 3))
+    assert "".join(titles[2][0].get_text().split()) == f"{long_name}.txtvs{long_name}_estimate.txt"
+    assert "\n" in titles[2][0].get_text()

@@ -151,6 +151,7 @@ def test_spawn_finds_rerun_beside_python_without_activation(tmp_path, rerun_env,
     exe.chmod(0o755)
     monkeypatch.setattr(sys, "executable", str(bindir / "python"))
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.setenv("DISPLAY", ":99")  # a desktop (the headless case: test_headless_*)
     assert rerun_viewer.rerun_executable() == str(exe)
     spawned = []
     monkeypatch.setattr(rr, "spawn", lambda **kw: spawned.append(kw))

@@ -22,16 +22,16 @@ _SOLVERS = ("schur", "gtsam")
 class LocalBAConfig:
     """Windowed (local) bundle adjustment."""
 
-    window_size: int = param(10, "most recent keyframes optimized (the caller builds the window)")
+    window_size: int = param(10, "most recent keyframes optimized (the caller builds the window)", bounds="[1, 10000]")
     # ORB-SLAM: 5; 3 give the same accuracy and outlier recall on the synthetic sweep here, 20 % faster
-    iterations_robust: int = param(3, "LM iterations of the first pass with the Huber kernel (0: no robust pass, no outlier removal)")
-    iterations_refine: int = param(10, "LM iterations after removing chi-square outliers, no kernel (ORB-SLAM: 10)")
-    huber_mono: float = param(math.sqrt(5.991), "Huber threshold on the whitened error sqrt(chi2), 2-dof observations")
-    huber_stereo: float = param(math.sqrt(7.815), "Huber threshold on the whitened error sqrt(chi2), 3-dof observations")
-    chi2_mono: float = param(5.991, "chi-square inlier threshold, 2-dof observations (95 %)")
-    chi2_stereo: float = param(7.815, "chi-square inlier threshold, 3-dof observations (95 %)")
+    iterations_robust: int = param(3, "LM iterations of the first pass with the Huber kernel (0: no robust pass, no outlier removal)", bounds="[0, 1000]")
+    iterations_refine: int = param(10, "LM iterations after removing chi-square outliers, no kernel (ORB-SLAM: 10)", bounds="[0, 1000]")
+    huber_mono: float = param(math.sqrt(5.991), "Huber threshold on the whitened error sqrt(chi2), 2-dof observations", bounds="(0, 1000]")
+    huber_stereo: float = param(math.sqrt(7.815), "Huber threshold on the whitened error sqrt(chi2), 3-dof observations", bounds="(0, 1000]")
+    chi2_mono: float = param(5.991, "chi-square inlier threshold, 2-dof observations (95 %)", bounds="(0, 1000000]")
+    chi2_stereo: float = param(7.815, "chi-square inlier threshold, 3-dof observations (95 %)", bounds="(0, 1000000]")
     # the tracker's and loop closer's
-    rgbd_virtual_baseline: float = param(RGBD_VIRTUAL_BASELINE, "metres; RGB-D depth z becomes a virtual right coordinate u - fx b / z (ORB-SLAM2)")
+    rgbd_virtual_baseline: float = param(RGBD_VIRTUAL_BASELINE, "metres; RGB-D depth z becomes a virtual right coordinate u - fx b / z (ORB-SLAM2)", bounds="(0, 100]")
     # u_right: u_r - (u - fx b / z) with errors independent of u's (ORB-SLAM2's stereo edge), i.e. a disparity
     # error of variance 2 sigma^2 correlated with u's error (+1/sqrt 2). disparity: (u - u_r) - fx b / z,
     # independent of u, same sigma: the model of a depth sensor (its depth does not move with the keypoint's
@@ -59,11 +59,11 @@ class LocalBAConfig:
     # mm (u_right 23.1); full 7-Scenes 0.5: 0.0518 m (30-frame relative error 0.0325). Synthetic 10 keyframes
     # x 3000 points (benchmarks/backend_bench.py problem): free-pose error u_right 8.09, disparity 6.57, 0.5:
     # 5.59 mm.
-    disparity_sigma_scale: float = param(math.sqrt(2.0), "std of the disparity residual in units of the keypoint's sigma (disparity residuals only)")
+    disparity_sigma_scale: float = param(math.sqrt(2.0), "std of the disparity residual in units of the keypoint's sigma (disparity residuals only)", bounds="(0, 1000]")
     solver: str = param("schur", "schur (vectorized NumPy/SciPy LM on the reduced camera system) or gtsam (the reference)")
-    lambda_initial: float = param(1e-4, "initial LM damping (Marquardt scaling of the Hessian diagonal)")
-    relative_tolerance: float = param(1e-4, "stop a pass when an iteration's relative cost decrease falls below this")
-    min_depth: float = param(1e-3, "metres; an observation whose point is closer (or behind) is an outlier")
+    lambda_initial: float = param(1e-4, "initial LM damping (Marquardt scaling of the Hessian diagonal)", bounds="(0, 1e10]")
+    relative_tolerance: float = param(1e-4, "stop a pass when an iteration's relative cost decrease falls below this", bounds="[0, 1]")
+    min_depth: float = param(1e-3, "metres; an observation whose point is closer (or behind) is an outlier", bounds="[0, 1000]")
 
     def __post_init__(self) -> None:
         if self.solver not in _SOLVERS:
@@ -88,25 +88,25 @@ class LocalBAConfig:
 class GlobalBAConfig(LocalBAConfig):
     """Full bundle adjustment over every keyframe (first keyframe fixed); more iterations."""
 
-    iterations_robust: int = param(10, "LM iterations of the first pass with the Huber kernel (0: no robust pass, no outlier removal)")
-    iterations_refine: int = param(20, "LM iterations after removing chi-square outliers, no kernel")
+    iterations_robust: int = param(10, "LM iterations of the first pass with the Huber kernel (0: no robust pass, no outlier removal)", bounds="[0, 1000]")
+    iterations_refine: int = param(20, "LM iterations after removing chi-square outliers, no kernel", bounds="[0, 1000]")
 
 
 @dataclass(frozen=True)
 class EKFConfig:
     """Constant-velocity pose EKF (see :mod:`vslam.backend.ekf`)."""
 
-    accel_sigma: float = param(1.0, "m/s^2 per sqrt(s); white linear-acceleration noise density driving the velocity")
-    angular_accel_sigma: float = param(1.0, "rad/s^2 per sqrt(s); white angular-acceleration noise density")
-    initial_sigma_position: float = param(1e-3, "metres; std of the first state's position")
-    initial_sigma_rotation: float = param(1e-3, "radians; std of the first state's rotation")
-    initial_sigma_velocity: float = param(1.0, "m/s; std of the unknown initial velocity")
-    initial_sigma_angular_velocity: float = param(1.0, "rad/s; std of the unknown initial angular velocity")
-    default_sigma_position: float = param(0.01, "metres; measurement std when update gets none")
-    default_sigma_rotation: float = param(0.01, "radians; measurement std when update gets none")
-    gate_chi2: float = param(float("inf"), "Mahalanobis gate on the 6-dof innovation (inf disables; 22.46 = 99.9 %)")
-    inlier_error_px: float = param(1.0, "pixels; assumed error of the frontend's inliers, scales the measured pose's covariance")
-    min_inlier_error_px: float = param(0.1, "pixels; floor of that error (keeps the covariance of a perfect fit positive)")
+    accel_sigma: float = param(1.0, "m/s^2 per sqrt(s); white linear-acceleration noise density driving the velocity", bounds="(0, 1000000]")
+    angular_accel_sigma: float = param(1.0, "rad/s^2 per sqrt(s); white angular-acceleration noise density", bounds="(0, 1000000]")
+    initial_sigma_position: float = param(1e-3, "metres; std of the first state's position", bounds="(0, 1000000]")
+    initial_sigma_rotation: float = param(1e-3, "radians; std of the first state's rotation", bounds="(0, 1000000]")
+    initial_sigma_velocity: float = param(1.0, "m/s; std of the unknown initial velocity", bounds="(0, 1000000]")
+    initial_sigma_angular_velocity: float = param(1.0, "rad/s; std of the unknown initial angular velocity", bounds="(0, 1000000]")
+    default_sigma_position: float = param(0.01, "metres; measurement std when update gets none", bounds="(0, 1000000]")
+    default_sigma_rotation: float = param(0.01, "radians; measurement std when update gets none", bounds="(0, 1000000]")
+    gate_chi2: float = param(float("inf"), "Mahalanobis gate on the 6-dof innovation (inf disables; 22.46 = 99.9 %)", bounds="(0, inf]")
+    inlier_error_px: float = param(1.0, "pixels; assumed error of the frontend's inliers, scales the measured pose's covariance", bounds="(0, 10000]")
+    min_inlier_error_px: float = param(0.1, "pixels; floor of that error (keeps the covariance of a perfect fit positive)", bounds="(0, 10000]")
 
     def __post_init__(self) -> None:
         for name in (
@@ -123,9 +123,9 @@ class FusionConfig:
     """Point fusion before each local BA: the window's points and the new keyframe's (ORB-SLAM2 SearchInNeighbors)."""
 
     enabled: bool = param(True, "before each local BA, fuse the window's points and the new keyframe's (needs association=match)")
-    radius_px: float = param(4.0, "point fusion search radius in pixels")
-    max_descriptor_distance: float = param(50.0, "point fusion descriptor threshold (Hamming)")
-    ratio: float = param(1.0, "point fusion ratio test (1.0: off, the closest descriptor in the radius wins)")
+    radius_px: float = param(4.0, "point fusion search radius in pixels", bounds="(0, 10000]")
+    max_descriptor_distance: float = param(50.0, "point fusion descriptor threshold (Hamming)", bounds="[0, 1000000]")
+    ratio: float = param(1.0, "point fusion ratio test (1.0: off, the closest descriptor in the radius wins)", bounds="(0, 1]")
     # Off: on KITTI 07 (mono, Sim(3) ATE, local BA) fusion raised the ATE on all 5 clips measured (160 frames
     # 0.431 vs 0.376 m; also with the octave check of ORB-SLAM2's Fuse, or with only its merges or only its
     # new observations).
@@ -138,8 +138,8 @@ class MonoBAConfig:
 
     # 3: no two-view points; their depth drifts ~1 % outwards per local BA, which new keyframes' PnP turns into
     # scale drift.
-    min_observations: int = param(3, "monocular BA leaves out points seen by fewer keyframes (2 keeps every point)")
-    min_multiview_points: int = param(100, "min_observations is skipped while fewer points would remain")
+    min_observations: int = param(3, "monocular BA leaves out points seen by fewer keyframes (2 keeps every point)", bounds="[1, 1000]")
+    min_multiview_points: int = param(100, "min_observations is skipped while fewer points would remain", bounds="[0, 1000000]")
     # Measured on KITTI 07 mono, 160 frames (Sim(3) ATE / RPE trans, m; odometry alone 0.276 / 0.029): keep
     # 0.290 / 0.073 (the left-out points stay where tracking put them, so the frames between keyframes
     # saw-tooth against the corrected keyframes: RPE x2.5), transport 0.397 / 0.036, retriangulate 0.385 /
@@ -149,8 +149,8 @@ class MonoBAConfig:
     left_out: Literal["keep", "transport", "retriangulate"] = param("retriangulate", "two-view points left out of a monocular BA: keep, transport (with their keyframe) or retriangulate")
     # Without this gate (cheirality alone) a low-parallax point lands anywhere on its ray: 7-Scenes mono's second
     # segment drifted 2.6x in scale (docs/architecture.md). 2 px: KITTI 07 0.348, 4 px: 0.326.
-    retriangulate_max_reproj_px: float = param(4.0, "a re-triangulated point moves only if it reprojects within this many pixels in both keyframes")
-    retriangulate_min_parallax_deg: float = param(1.0, "... and is seen with at least this parallax, degrees (else it keeps its position)")
+    retriangulate_max_reproj_px: float = param(4.0, "a re-triangulated point moves only if it reprojects within this many pixels in both keyframes", bounds="(0, 1000]")
+    retriangulate_min_parallax_deg: float = param(1.0, "... and is seen with at least this parallax, degrees (else it keeps its position)", bounds="[0, 180]")
 
     def __post_init__(self) -> None:
         if self.min_observations < 2:
@@ -163,12 +163,12 @@ class CullingConfig:
     """Culling after each keyframe: new points too few keyframes observe (ORB-SLAM MapPointCulling), and
     optionally redundant keyframes (KeyFrameCulling)."""
 
-    min_observations: int = param(2, "a point born two keyframes ago that fewer keyframes observe is culled (0 or 1 disables)")
-    age_keyframes: int = param(3, "a new point is judged by min_observations once its segment has this many keyframes from its own on (ORB-SLAM: 3)")
+    min_observations: int = param(2, "a point born two keyframes ago that fewer keyframes observe is culled (0 or 1 disables)", bounds="[0, 1000]")
+    age_keyframes: int = param(3, "a new point is judged by min_observations once its segment has this many keyframes from its own on (ORB-SLAM: 3)", bounds="[0, 1000000]")
     keyframes: bool = param(False, "flag redundant keyframes bad (ORB-SLAM KeyFrameCulling)")
-    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= redundant_min_observers others that makes it redundant")
-    redundant_min_observers: int = param(3, "other keyframes that must see a point for it to count as redundant (ORB-SLAM: 3)")
-    keep_recent_keyframes: int = param(3, "the newest this many keyframes of a segment are never culled")
+    redundant_ratio: float = param(0.9, "fraction of a keyframe's points seen by >= redundant_min_observers others that makes it redundant", bounds="[0, 1]")
+    redundant_min_observers: int = param(3, "other keyframes that must see a point for it to count as redundant (ORB-SLAM: 3)", bounds="[1, 1000]")
+    keep_recent_keyframes: int = param(3, "the newest this many keyframes of a segment are never culled", bounds="[0, 1000000]")
 
 
 @dataclass(frozen=True)
@@ -179,17 +179,17 @@ class BackendConfig:
     local_ba: bool = param(True, "run windowed BA after each keyframe (graph backend)")
     mode: Literal["deterministic", "parallel", "realtime"] = param("deterministic", "deterministic (local mapping inline, same result every run), parallel (local BA solved in a worker thread, applied at a fixed frame lag: same result every run) or realtime (background worker)")
     parallel_worker: Literal["thread", "process"] = param("process", "parallel mode: the local BA solve runs in a child process (no GIL shared with tracking) or a thread")
-    lag_frames: int = param(8, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first")
+    lag_frames: int = param(8, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first", bounds="[0, 1000000]")
     final_ba: bool = param(False, "run a full global bundle adjustment at the end of the run")
-    covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones")
-    max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed")
-    stereo_far_baselines: float = param(35.0, "stereo observations of points farther than this many baselines enter BA as monocular (0: off)")
+    covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones", bounds="[0, 10000]")
+    max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed", bounds="[0, 10000]")
+    stereo_far_baselines: float = param(35.0, "stereo observations of points farther than this many baselines enter BA as monocular (0: off)", bounds="(0, 1000000]")
     # ORB-SLAM2's triangulation minimum, cos 0.9998. Otherwise its depth is unobservable and LM slides it along
     # its ray, dragging the poses. EuRoC V1_01 (camera at rest): one such point went from 4.2 m to the camera
     # centre when the LM converged, moving the second keyframe 0.9 mm, and stopped the default solve 0.8 mm
     # short of that minimum (the Schur solver and GTSAM disagreed by 1.0 mm); without it both converge in 4
     # iterations to the same pose (0.5 um apart). EuRoC ATE with local BA 0.89 -> 0.88 mm.
-    depthless_min_parallax_deg: float = param(1.15, "stereo/RGB-D: a point with no depth observation in BA needs this parallax, degrees (0: off)")
+    depthless_min_parallax_deg: float = param(1.15, "stereo/RGB-D: a point with no depth observation in BA needs this parallax, degrees (0: off)", bounds="[0, 180]")
     fusion: FusionConfig = section(FusionConfig, "point fusion before each local BA", ("fuse_",), {"fuse": "enabled"})
     mono: MonoBAConfig = section(MonoBAConfig, "which points a monocular local BA optimizes", ("mono_",))
     cull: CullingConfig = section(CullingConfig, "point and keyframe culling", ("cull_", ""))
@@ -201,7 +201,7 @@ class BackendConfig:
     # Local BA, loop closing off, ATE m, reference -> interpolate: KITTI 06 stereo 0.0561 -> 0.0557, KITTI 07
     # mono 0.340 -> 0.339, fr1/desk 9 frames 0.00468 -> 0.00463, EuRoC V1_01 40 frames 0.00089 -> 0.00088 (with
     # the u_right RGB-D residual); synthetic RGB-D (exact ground truth, 60 frames) 0.0057 -> 0.0040.
-    dense_link_min_depth: float = param(0.1, "metres; an RGB-D dense-link sample enters local BA only if it lies this far in front of both keyframes")
+    dense_link_min_depth: float = param(0.1, "metres; an RGB-D dense-link sample enters local BA only if it lies this far in front of both keyframes", bounds="[0, 1000]")
     frame_correction: Literal["reference", "interpolate"] = param("interpolate", "frames between keyframes follow them: reference (their reference keyframe) or interpolate (blend by time)")
 
     def __post_init__(self) -> None:

@@ -10,6 +10,7 @@ so the local scale grows along the loop; the Sim(3) graph (``sim3=True``) correc
 """
 from __future__ import annotations
 
+import io
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from vslam.map.pose_graph import optimize_pose_graph
 from vslam.errors import ConfigError
 from vslam.geometry.lie import inv_se3, make_sim3, so3_exp
 from vslam.geometry.umeyama import umeyama
+from vslam.outputs import atomic_write_bytes
 
 LOG = logging.getLogger(__name__)
 
@@ -143,7 +145,9 @@ def run_drift_demo(output_dir: str | Path, noise: float = 1.0, seed: int = 0, n_
     ax.set_title(f"Drift and loop closure (noise x{noise:g}, {n_poses} poses)")
     ax.legend(loc="best", fontsize=8)
     path = output_dir / "drift_demo.png"
-    fig.savefig(path, dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    atomic_write_bytes(path, buf.getvalue())
     out["plot"] = str(path)
     LOG.info("drift demo: end drift %.3f -> %.3f m, ATE %.3f -> %.3f m", out["end_drift_before"],
              out["end_drift_after"], out["ate_before"], out["ate_after"])

@@ -88,8 +88,10 @@ def sensor_frame_rate(run: RunSpec, sensor: str | None) -> float | None:
     """
     try:
         from vslam.datasets import open_dataset
+        from vslam.inertial.sensors import split_sensor
 
-        ds = open_dataset(run.data, kind=run.dataset, sensor=sensor)
+        visual = split_sensor(sensor)[0] if sensor else None  # the images' rate, inertial or not
+        ds = open_dataset(run.data, kind=run.dataset, sensor=visual)
     except Exception as exc:  # a broken dataset is reported by the run itself
         log.debug("frame rate of %s unknown: %s", run.data, exc)
         return None
@@ -295,10 +297,7 @@ class RayExecutor:
         if self.address:
             ray.init(address=self.address, log_to_driver=False)
             return True, None
-        # Ray's socket paths must stay short (< 108 bytes): keep the session folder in /tmp.
-        tmp = self.temp_dir or Path(tempfile.mkdtemp(prefix="vslam-ray-"))
-        ray.init(num_cpus=self.workers or os.cpu_count() or 1, include_dashboard=False,
-                 _temp_dir=str(tmp), log_to_driver=False, configure_logging=False)
+        tmp = start_local_ray(self.workers or os.cpu_count() or 1, self.temp_dir)
         return True, (None if self.temp_dir else tmp)
 
     def map(self, jobs: Sequence[Job], runner: Runner | None = None, on_result: OnResult | None = None) -> list[dict]:
@@ -335,6 +334,28 @@ class RayExecutor:
                 ray.shutdown()
             if tmp is not None:
                 shutil.rmtree(tmp, ignore_errors=True)
+
+
+def start_local_ray(num_cpus: int, temp_dir: Path | None = None, tries: int = 2) -> Path:
+    """Start a local Ray instance (no dashboard, quiet); returns its session folder. Ray's socket
+    paths must stay short (< 108 bytes), so the folder is a fresh one in /tmp unless given. On a
+    loaded machine Ray's first start can time out waiting for its own GCS server; it is tried
+    ``tries`` times, then refused with one line."""
+    import ray
+
+    tmp = temp_dir or Path(tempfile.mkdtemp(prefix="vslam-ray-"))
+    for attempt in range(1, tries + 1):
+        try:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, _temp_dir=str(tmp), log_to_driver=False,
+                     configure_logging=False)
+            return tmp
+        except RuntimeError as exc:  # e.g. "Timed out waiting for file .../gcs_server_port_..."
+            ray.shutdown()
+            log.warning("local Ray did not start (try %d of %d): %s", attempt, tries, exc)
+            if attempt == tries:
+                raise VslamError(f"could not start a local Ray instance ({exc}); is the machine overloaded? "
+                                 "retry, or use --executor local") from None
+    return tmp
 
 
 def make_executor(kind: str = "local", workers: int | None = 1, address: str | None = None):

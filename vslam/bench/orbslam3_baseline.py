@@ -27,10 +27,14 @@ Pitfalls of the wheel (measured), handled here:
 * ``save_trajectory_tum`` refuses monocular runs: the final trajectory is saved in EuRoC format
   (nanosecond timestamps) and converted; the per-frame online poses (``TrackResult.pose_wc``) are
   the fallback when that file is empty;
-* unpaced monocular mapping cannot keep up on 2 cores: by default (``pace="mono"``) monocular runs
-  are fed at the sensor rate times ``pace_rate`` (default 1), which caps their frames/s at that
-  rate (``stats["paced"]``). On a loaded machine even the sensor rate is too fast (measured: KITTI
-  07 at load ~8 resets its map twice at 10 Hz, tracks 156/160 frames at 4 Hz): lower ``pace_rate``.
+* unpaced monocular mapping cannot keep up on 2 cores: by default (``pace="mono"``) monocular and
+  inertial runs are fed at the sensor rate times ``pace_rate`` (default 1), which caps their
+  frames/s at that rate (``stats["paced"]``). On a loaded machine even the sensor rate is too fast
+  (measured: KITTI 07 at load ~8 resets its map twice at 10 Hz, tracks 156/160 frames at 4 Hz):
+  lower ``pace_rate``. Unpaced, ORB-SLAM3's mono-inertial mapping resets over and over on 2 cores;
+* the inertial sensors run ORB-SLAM3's ``IMU_MONOCULAR`` / ``IMU_STEREO`` / ``IMU_RGBD`` modes with
+  the sequence's IMU (:mod:`vslam.bench.orbslam3_io`: samples per frame, the settings' ``Tbc`` and
+  noise block, and the saved trajectory, which holds IMU poses, turned into the camera's).
 """
 from __future__ import annotations
 
@@ -49,7 +53,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from vslam.bench.orbslam3_io import read_euroc_ns, settings_yaml  # noqa: F401 - re-exported
 from vslam.errors import VslamError
+from vslam.inertial.sensors import ALL_SENSORS
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +64,7 @@ NAME = "orbslam3"
 PYTHON_ENV = "VSLAM_ORBSLAM3_PYTHON"
 #: environment variable naming the DBoW2 text vocabulary (pyorbslam3's own convention)
 VOCAB_ENV = "PYORBSLAM3_VOCAB"
-#: which sensors are fed at the sensor rate: ``mono`` (default), ``all`` or ``none``
+#: which sensors are fed at the sensor rate: ``mono`` (default: monocular and inertial), ``all`` or ``none``
 PACE_CHOICES = ("mono", "all", "none")
 #: what the child interpreter must be able to import
 _CHILD_IMPORTS = "import pyorbslam3, numpy, scipy, cv2, yaml, vslam.datasets"
@@ -200,9 +206,8 @@ def run_orbslam3(path: str | Path, output: str | Path | None, sensor: str | None
         VslamError: the setup is missing, or the child failed (its exit status or signal and the
             end of ``orbslam3.log`` are in the message).
     """
-    from vslam.datasets import open_dataset
+    from vslam.errors import TrajectoryError
     from vslam.trajectory import read_trajectory
-    from vslam.runner import trajectory_errors
 
     _check_pace(pace, pace_rate)
     vocabulary = check_vocabulary(vocabulary)
@@ -229,13 +234,32 @@ def run_orbslam3(path: str | Path, output: str | Path | None, sensor: str | None
                          f"({_log_tail(log_path) or 'no output'}); see {log_path}")
     stats["process_wall_s"] = round(elapsed, 3)
     traj_path = out / "trajectory.txt"
-    traj = read_trajectory(traj_path) if traj_path.is_file() and traj_path.stat().st_size else None
-    ds = open_dataset(path, kind=dataset, sensor=stats.get("sensor", sensor))
-    gt = ds.ground_truth()
-    if gt is not None and traj is not None and len(traj) >= 3:
-        stats.update(trajectory_errors(traj, gt, "sim3" if stats.get("sensor") == "mono" else "se3"))
+    try:  # a run that kept no pose writes an empty trajectory: no evaluation then
+        traj = read_trajectory(traj_path) if traj_path.is_file() and traj_path.stat().st_size else None
+    except TrajectoryError:
+        traj = None
+    stats.update(_evaluate(traj, path, dataset, stats.get("sensor", sensor)))
     (out / "stats.json").write_text(json.dumps(stats, indent=2))
     return stats
+
+
+def _evaluate(traj: Any, path: str | Path, dataset: str | None, sensor: str | None) -> dict:
+    """ATE/RPE of the baseline's trajectory as for a vslam run of ``sensor`` (Sim(3) for ``mono``,
+    SE(3) otherwise: mono-inertial is metric); mono-inertial adds the Sim(3) ATE and scale
+    (``ate_rmse_sim3``, ``scale_sim3``)."""
+    from vslam.datasets import open_dataset
+    from vslam.inertial.sensors import split_sensor
+    from vslam.runner import trajectory_errors
+
+    ds = open_dataset(path, kind=dataset, sensor=split_sensor(sensor)[0] if sensor else None)
+    gt = ds.ground_truth()
+    if gt is None or traj is None or len(traj) < 3:
+        return {}
+    errors = trajectory_errors(traj, gt, "sim3" if sensor == "mono" else "se3")
+    if sensor == "mono-inertial":
+        sim3 = trajectory_errors(traj, gt, "sim3")
+        errors.update(ate_rmse_sim3=sim3.get("ate_rmse"), scale_sim3=sim3.get("scale"))
+    return errors
 
 
 def _check_pace(pace: str, pace_rate: float) -> None:
@@ -266,78 +290,86 @@ def _import_pyorbslam3():
     return pyorbslam3
 
 
-def settings_yaml(camera: Any, sensor: str, frame_rate: float, depth_scale: float = 1.0) -> str:
-    """ORB-SLAM3 settings in the older ``Camera.*`` form (see the pitfalls above).
-
-    ORB parameters follow ORB-SLAM3's example settings: 2000 features for KITTI-sized images
-    (> 400k pixels), 1000 for 640x480; stereo/RGB-D ``ThDepth`` 40 baselines (KITTI uses 35).
-    """
-    dist = np.zeros(5) if camera.dist is None else np.asarray(camera.dist, float).ravel()
-    dist = np.pad(dist, (0, max(0, 5 - len(dist))))[:5]
-    n_features = 2000 if camera.width * camera.height > 400_000 else 1000
-    lines = [
-        "%YAML:1.0", "Camera.type: \"PinHole\"",
-        f"Camera.fx: {camera.fx}", f"Camera.fy: {camera.fy}", f"Camera.cx: {camera.cx}", f"Camera.cy: {camera.cy}",
-        f"Camera.k1: {dist[0]}", f"Camera.k2: {dist[1]}", f"Camera.p1: {dist[2]}", f"Camera.p2: {dist[3]}",
-        f"Camera.k3: {dist[4]}",
-        f"Camera.width: {camera.width}", f"Camera.height: {camera.height}",
-        f"Camera.fps: {max(1, int(round(frame_rate)))}", "Camera.RGB: 0",
-        f"ORBextractor.nFeatures: {n_features}", "ORBextractor.scaleFactor: 1.2", "ORBextractor.nLevels: 8",
-        "ORBextractor.iniThFAST: 20", "ORBextractor.minThFAST: 7",
-        "Viewer.KeyFrameSize: 0.05", "Viewer.KeyFrameLineWidth: 1.0", "Viewer.GraphLineWidth: 0.9",
-        "Viewer.PointSize: 2.0", "Viewer.CameraSize: 0.08", "Viewer.CameraLineWidth: 3.0",
-        "Viewer.ViewpointX: 0.0", "Viewer.ViewpointY: -0.7", "Viewer.ViewpointZ: -1.8", "Viewer.ViewpointF: 500.0",
-    ]
-    if sensor in ("stereo", "rgbd"):
-        baseline = float(camera.baseline or 0.0)
-        lines += [f"Camera.bf: {camera.fx * baseline if sensor == 'stereo' else camera.fx * 0.08}",
-                  "ThDepth: 40.0"]
-    if sensor == "rgbd":
-        lines.append(f"DepthMapFactor: {depth_scale}")  # frames carry depth in metres already
-    return "\n".join(lines) + "\n"
-
-
-def _track(slam: Any, sensor: str, frame: Any) -> np.ndarray | None:
-    """One tracking call of ``pyorbslam3.Slam``; ``T_world_cam`` (its ``pose_wc``) or None.
+def _track(slam: Any, sensor: str, frame: Any, imu: np.ndarray | None = None) -> np.ndarray | None:
+    """One tracking call of ``pyorbslam3.Slam`` (``sensor``: the visual base sensor; ``imu``: the
+    frame's IMU samples in an inertial mode); ``T_world_cam`` (its ``pose_wc``) or None.
 
     ``pose_valid`` is true for ORB-SLAM3's OK and RECENTLY_LOST states; otherwise ORB-SLAM3
     reports no pose, and the frame counts as lost.
     """
+    kw = {} if imu is None else {"imu": imu}
     if sensor == "rgbd":
-        res = slam.track_rgbd(frame.image, frame.depth.astype(np.float32), frame.timestamp)
+        res = slam.track_rgbd(frame.image, frame.depth.astype(np.float32), frame.timestamp, **kw)
     elif sensor == "stereo":
-        res = slam.track_stereo(frame.image, frame.image_right, frame.timestamp)
+        res = slam.track_stereo(frame.image, frame.image_right, frame.timestamp, **kw)
     else:
-        res = slam.track_monocular(frame.image, frame.timestamp)
+        res = slam.track_monocular(frame.image, frame.timestamp, **kw)
     if not getattr(res, "pose_valid", False) or getattr(res, "pose_wc", None) is None:
         return None
     T = np.asarray(res.pose_wc, dtype=float)
     return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
 
 
-def read_euroc_ns(path: str | Path):
-    """ORB-SLAM3's ``SaveTrajectoryEuRoC`` file (``t_ns tx ty tz qx qy qz qw``, spaces) as a
-    :class:`~vslam.trajectory.Trajectory` in seconds; None when missing or empty.
+def _open_child_dataset(path: str | Path, dataset: str | None, sensor: str | None):
+    """``(dataset, sensor, base sensor, IMU calibration or None, ImuFeeder or None)`` of the run."""
+    from vslam.bench.orbslam3_io import ImuFeeder, imu_for
+    from vslam.datasets import open_dataset
+    from vslam.inertial.sensors import split_sensor
 
-    ORB-SLAM3 repeats the last frame's time and pose for every frame it lost: only the first line
-    of each timestamp is kept, so lost frames do not count as poses.
-    """
-    from scipy.spatial.transform import Rotation
+    probe = open_dataset(path, kind=dataset)
+    if sensor is None:
+        sensor = next((s for s in ("rgbd", "stereo", "mono") if s in probe.sensors), None)
+    base, inertial = split_sensor(sensor) if sensor else (None, False)
+    if base not in probe.sensors:
+        raise VslamError(f"{path} provides {', '.join(probe.sensors)}; it cannot be run as {sensor!r}")
+    ds = open_dataset(path, kind=dataset, sensor=base)
+    if not inertial:
+        return ds, sensor, base, None, None
+    imu, calib = imu_for(ds)
+    log.info("IMU: %d samples from %s, T_imu_cam translation %s m", len(imu), imu.source,
+             np.round(calib.T_imu_cam[:3, 3], 4).tolist())
+    return ds, sensor, base, calib, ImuFeeder(imu, calib.time_offset)
 
-    from vslam.trajectory import Trajectory
 
-    path = Path(path)
-    if not path.is_file() or path.stat().st_size == 0:
-        return None
-    data = np.loadtxt(path, ndmin=2)
-    if data.shape[0] == 0 or data.shape[1] != 8:
-        return None
-    _, first = np.unique(data[:, 0], return_index=True)  # sorted by time, first of equal times
-    data = data[first]
-    T = np.tile(np.eye(4), (len(data), 1, 1))
-    T[:, :3, :3] = Rotation.from_quat(data[:, 4:8]).as_matrix()
-    T[:, :3, 3] = data[:, 1:4]
-    return Trajectory(data[:, 0] * 1e-9, T)
+def _feed(slam: Any, ds: Any, base: str, start: int, stop: int, period: float, feeder: Any) -> dict:
+    """Feed frames ``start:stop`` (paced at ``period`` s when > 0); the online poses (inertial: only
+    those after ORB-SLAM3's IMU initialization), per-frame tracking times and the IMU init frame."""
+    ts, poses, track_ms = [], [], []
+    n, init_frame, init_t = 0, None, None
+    t_first = None
+    for frame in ds.frames(start, stop):
+        t_frame = time.perf_counter()
+        t_first = frame.timestamp if t_first is None else t_first
+        T_world_cam = _track(slam, base, frame, None if feeder is None else feeder.chunk(frame.timestamp))
+        track_ms.append(1e3 * (time.perf_counter() - t_frame))
+        n += 1
+        if feeder is not None and init_frame is None and slam.time_from_imu_init() > 0:
+            init_frame, init_t = n - 1, frame.timestamp - t_first
+        if T_world_cam is not None and (feeder is None or init_frame is not None):
+            ts.append(frame.timestamp)
+            poses.append(T_world_cam)
+        if n % 100 == 0:
+            log.info("frame %d: %d tracked", n, len(ts))
+        if period:
+            time.sleep(max(0.0, period - (time.perf_counter() - t_frame)))
+    return {"n": n, "ts": ts, "poses": poses, "track_ms": track_ms, "init_frame": init_frame, "init_t": init_t}
+
+
+def _saved_trajectory(slam: Any, out: Path, online: Any, calib: Any) -> tuple[Any, str]:
+    """ORB-SLAM3's own final trajectory (``save_trajectory_euroc``; an IMU mode saves body poses,
+    turned into the camera's), else the online poses; ``(trajectory, "final" | "online")``."""
+    from vslam.bench.orbslam3_io import body_to_camera
+
+    euroc_path = out / "orbslam3_trajectory_euroc.txt"
+    final = None
+    try:
+        slam.save_trajectory_euroc(str(euroc_path))  # the final (loop-corrected) poses, mono included
+        final = read_euroc_ns(euroc_path)
+    except Exception as exc:  # keep the online poses
+        log.warning("save_trajectory_euroc failed: %s", exc)
+    if final is not None and len(final) and calib is not None:
+        final = body_to_camera(final, calib.T_imu_cam)
+    return (final, "final") if final is not None and len(final) else (online, "online")
 
 
 def track_sequence(path: str | Path, output: str | Path, vocabulary: str | Path, sensor: str | None = None,
@@ -349,63 +381,40 @@ def track_sequence(path: str | Path, output: str | Path, vocabulary: str | Path,
     ``fps`` is frames / ``wall_s``, where ``wall_s`` covers reading the frames, tracking and
     ``shutdown()`` (ORB-SLAM3 finishing local mapping and loop closing), as for a vslam run;
     loading the vocabulary is ``init_s``. ``track_ms_*`` is the time spent in the tracking calls.
+    An inertial sensor runs ORB-SLAM3's IMU mode (:mod:`vslam.bench.orbslam3_io`).
     """
-    from vslam.datasets import open_dataset
+    from vslam.bench.orbslam3_io import orb_sensor
     from vslam.trajectory import Trajectory, write_tum
 
     orb = _import_pyorbslam3()
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    probe = open_dataset(path, kind=dataset)
-    if sensor is None:
-        sensor = next((s for s in ("rgbd", "stereo", "mono") if s in probe.sensors), None)
-    if sensor not in probe.sensors:
-        raise VslamError(f"{path} provides {', '.join(probe.sensors)}; it cannot be run as {sensor!r}")
-    ds = open_dataset(path, kind=dataset, sensor=sensor)
+    ds, sensor, base, calib, feeder = _open_child_dataset(path, dataset, sensor)
     settings = out / "orbslam3_settings.yaml"
-    settings.write_text(settings_yaml(ds.camera, sensor, ds.frame_rate))
-    kind = {"mono": orb.Sensor.MONOCULAR, "stereo": orb.Sensor.STEREO, "rgbd": orb.Sensor.RGBD}[sensor]
+    settings.write_text(settings_yaml(ds.camera, base, ds.frame_rate, imu_calibration=calib))
+    kind = orb_sensor(orb, sensor)
     t_init = time.perf_counter()
     slam = orb.Slam(str(vocabulary), str(settings), kind, use_viewer=False)
     init_s = time.perf_counter() - t_init
     stop = len(ds) if max_frames is None else min(len(ds), start_frame + max_frames)
-    paced = pace == "all" or (pace == "mono" and sensor == "mono")
+    paced = pace == "all" or (pace == "mono" and (base == "mono" or calib is not None))
     period = 1.0 / (ds.frame_rate * pace_rate) if paced and ds.frame_rate else 0.0
-    ts, poses, track_ms = [], [], []
-    n = 0
     t0 = time.perf_counter()
     try:
-        for frame in ds.frames(start_frame, stop):
-            t_frame = time.perf_counter()
-            T_world_cam = _track(slam, sensor, frame)
-            track_ms.append(1e3 * (time.perf_counter() - t_frame))
-            n += 1
-            if T_world_cam is not None:
-                ts.append(frame.timestamp)
-                poses.append(T_world_cam)
-            if n % 100 == 0:
-                log.info("frame %d: %d tracked", n, len(ts))
-            if period:
-                time.sleep(max(0.0, period - (time.perf_counter() - t_frame)))
+        fed = _feed(slam, ds, base, start_frame, stop, period, feeder)
     finally:
         t_shutdown = time.perf_counter()
         slam.shutdown()
         shutdown_s = time.perf_counter() - t_shutdown
-    wall = time.perf_counter() - t0
-    online = Trajectory(np.asarray(ts, float), np.asarray(poses, float).reshape(-1, 4, 4))
+    wall, n, ts = time.perf_counter() - t0, fed["n"], fed["ts"]
+    online = Trajectory(np.asarray(ts, float), np.asarray(fed["poses"], float).reshape(-1, 4, 4))
     write_tum(out / "trajectory_online.txt", online)
-    euroc_path = out / "orbslam3_trajectory_euroc.txt"
-    final = None
-    try:
-        slam.save_trajectory_euroc(str(euroc_path))  # the final (loop-corrected) poses, mono included
-        final = read_euroc_ns(euroc_path)
-    except Exception as exc:  # keep the online poses
-        log.warning("save_trajectory_euroc failed: %s", exc)
-    traj, source = (final, "final") if final is not None and len(final) else (online, "online")
+    traj, source = _saved_trajectory(slam, out, online, calib)
     write_tum(out / "trajectory.txt", traj)
-    track = np.asarray(track_ms) if track_ms else np.zeros(1)
+    track = np.asarray(fed["track_ms"]) if fed["track_ms"] else np.zeros(1)
     # tracked = poses in the evaluated trajectory: ORB-SLAM3's saved trajectory drops frames of
     # maps it reset or did not keep; tracked_online counts the frames its tracking gave a pose
+    # (inertial: after its IMU initialization)
     stats = {"frames": n, "tracked": len(traj), "lost": n - len(traj), "tracked_online": len(ts),
              "wall_s": round(wall, 3),
              "fps": round(n / wall, 2) if wall > 0 else 0.0, "init_s": round(init_s, 3),
@@ -414,6 +423,10 @@ def track_sequence(path: str | Path, output: str | Path, vocabulary: str | Path,
              "dataset": ds.kind, "path": str(path), "start_frame": start_frame, "system": NAME,
              "paced": paced, "pace_rate": pace_rate if paced else None, "frame_rate": round(float(ds.frame_rate), 4) if ds.frame_rate else None,
              "trajectory": source, "vocabulary": str(vocabulary)}
+    if feeder is not None:
+        stats.update(imu_samples=feeder.fed, imu_initialized=fed["init_frame"] is not None,
+                     imu_init_frame=fed["init_frame"],
+                     imu_init_s=None if fed["init_t"] is None else round(float(fed["init_t"]), 3))
     (out / "orbslam3_stats.json").write_text(json.dumps(stats, indent=2))
     return stats
 
@@ -426,7 +439,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--data", required=True)
     p.add_argument("--output", required=True)
     p.add_argument("--vocabulary", required=True)
-    p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"])
+    p.add_argument("--sensor", choices=ALL_SENSORS)
     p.add_argument("--dataset")
     p.add_argument("--start-frame", type=int, default=0)
     p.add_argument("--max-frames", type=int)

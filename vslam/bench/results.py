@@ -1,5 +1,6 @@
 """Benchmark results: ``results.json`` (one row per run and repeat), ``results.md`` (median and
-min-max spread per run), and PNG plots of ATE and frames per second per run.
+min-max spread per run), and PNG plots of ATE and frames per second per run, and of every
+repeat's trajectory of a run in one plot (:mod:`vslam.bench.overlay`).
 
 Statistics per run use the repeats that succeeded and report the median with the min-max range;
 a metric missing from every repeat (no ground truth) is shown as ``-``.
@@ -16,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from vslam.bench.overlay import overlays_markdown, write_overlays
 from vslam.errors import VslamError
 from vslam.outputs import atomic_write_bytes, atomic_write_text
 from vslam.textfile import open_text
@@ -235,8 +237,9 @@ def plot_per_run(rows: Sequence[dict], key: str, label: str, dpi: int = 100) -> 
 
 def write_results(rows: Sequence[dict], output: str | Path, meta: dict | None = None,
                   plots: bool = True) -> dict[str, Path]:
-    """Write ``results.json``, ``results.md`` and (with ``plots``) ``ate.png`` / ``fps.png`` into
-    ``output``; returns ``{kind: path}``."""
+    """Write ``results.json``, ``results.md`` and (with ``plots``) ``ate.png`` / ``fps.png`` and
+    the trajectory overlays ``traj_<run>.png`` (:mod:`vslam.bench.overlay`, listed in
+    ``results.md``) into ``output``; returns ``{kind: path}`` (``traj_<run>`` for the overlays)."""
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
@@ -250,10 +253,14 @@ def write_results(rows: Sequence[dict], output: str | Path, meta: dict | None = 
         data["baseline_comparison"] = comparison
     # each file atomically: a full disk leaves the previous results whole, never a truncated file
     files["json"] = atomic_write_text(output / "results.json", json.dumps(data, indent=2, default=_json_default))
-    files["md"] = atomic_write_text(output / "results.md", results_markdown(rows, meta))
+    overlays: dict[str, Path] = {}
     if plots:
         for key, label, fname in PLOTS:
             files[key] = atomic_write_bytes(output / fname, plot_per_run(rows, key, label))
+        overlays = write_overlays(rows, output, meta)  # traj_<run>.png: every repeat's trajectory in one plot
+        files.update(overlays)
+    files["md"] = atomic_write_text(output / "results.md",
+                                    results_markdown(rows, meta) + overlays_markdown(overlays, output))
     return files
 
 

@@ -8,7 +8,7 @@ A spec is a small YAML file::
     runs:
       - name: kitti06-stereo        # unique; letters, digits, '.', '_' and '-' (it names a folder)
         data: ../shared/data/kitti_odometry/sequences/06
-        sensor: stereo              # mono | stereo | rgbd (default: the richest the data has)
+        sensor: stereo              # mono | stereo | rgbd [-inertial] (default: the richest the data has)
         set: {loop.enabled: false}  # config overrides, as `vslam run --set` (or a list of "k=v")
         # optional: max_frames, start_frame, dataset, config, repeats
 
@@ -16,10 +16,14 @@ Paths (``data``, ``config``) may use environment variables (``${VSLAM_SHARED_DAT
 default for when the variable is unset or empty (``${VSLAM_SHARED_DATA:-../../shared/data}``), and ``~``;
 relative paths (also a default's) resolve against the folder of the spec file, not the working directory.
 An unset variable, an unknown key, a wrong type or a duplicate name raises
-:class:`~vslam.errors.ConfigError` naming the spec file, the run and the field.
+:class:`~vslam.errors.ConfigError` naming the spec file, the run and the field; so do ``repeats``
+over :data:`MAX_REPEATS`, a ``config`` that is the spec itself, and (with ``check_paths``, as both
+``vslam bench`` and its ``--dry-run`` do) a ``data`` path that is missing or a symbolic-link loop.
+The file is read with YAML aliases refused and at most :data:`MAX_SPEC_BYTES` bytes.
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -27,12 +31,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from vslam.errors import ConfigError
-from vslam.textfile import open_text
+from vslam.inertial.sensors import ALL_SENSORS
+from vslam.outputs import same_path
+from vslam.textfile import load_yaml_text, open_text
 
-SENSORS = ("mono", "stereo", "rgbd")
+SENSORS = ALL_SENSORS  # mono, stereo, rgbd and their -inertial variants
+#: runs of one spec entry: a benchmark repeats a run a few times, never millions
+MAX_REPEATS = 1000
+#: a spec is a few KB
+MAX_SPEC_BYTES = 1_000_000
+#: overrides only the dry run's stand-in runner reads (:mod:`vslam.bench.fake`)
+FAKE_PREFIX = "fake."
 _TOP_KEYS = {"repeats", "runs", "defaults", "description"}
 _RUN_KEYS = {"name", "data", "sensor", "set", "max_frames", "start_frame", "dataset", "config", "repeats"}
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
@@ -101,12 +111,28 @@ def _expand_path(value: Any, where: str, base_dir: Path) -> Path:
     return Path(os.path.normpath(path))
 
 
-def _int(value: Any, where: str, minimum: int) -> int:
+def _int(value: Any, where: str, minimum: int, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(f"{where}: expected an integer, got {value!r}")
     if value < minimum:
         raise ConfigError(f"{where}: must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{where}: must be <= {maximum}, got {value}")
     return value
+
+
+def _check_paths(data_path: Path, config_path: Path | None, where: str, base_dir: Path) -> None:
+    """The run's ``data`` exists (a symbolic-link loop named as such) and its ``config`` is a file."""
+    try:
+        data_path.stat()
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ConfigError(f"{where}.data: {data_path} is a symbolic link loop (it leads back to itself); "
+                              "point it at the sequence folder") from None
+        raise ConfigError(f"{where}.data: {data_path} does not exist; fix the path "
+                          f"(relative paths resolve against {base_dir})") from None
+    if config_path is not None and not config_path.is_file():
+        raise ConfigError(f"{where}.config: {config_path} is not a file")
 
 
 def _overrides(value: Any, where: str) -> tuple[str, ...]:
@@ -132,13 +158,15 @@ def _overrides(value: Any, where: str) -> tuple[str, ...]:
     raise ConfigError(f"{where}: expected a mapping {{key: value}} or a list of 'key=value', got {value!r}")
 
 
-def _check_config(config_path: Path | None, overrides: tuple[str, ...], where: str) -> None:
+def _check_config(config_path: Path | None, overrides: tuple[str, ...], where: str, fake_keys: bool = False) -> None:
     """Build the run's configuration so a typo in ``set`` fails before any run (skipped while the
-    root ``vslam.config.Config`` does not exist yet)."""
+    root ``vslam.config.Config`` does not exist yet); ``fake_keys``: the dry run's ``fake.*`` are no settings."""
     try:
         from vslam.config import Config, load_config
     except ImportError:
         return
+    if fake_keys:
+        overrides = tuple(o for o in overrides if not o.startswith(FAKE_PREFIX))
     try:
         load_config(Config, config_path if (config_path and config_path.is_file()) else None, overrides)
     except ConfigError as exc:
@@ -146,7 +174,7 @@ def _check_config(config_path: Path | None, overrides: tuple[str, ...], where: s
 
 
 def parse_spec(data: Any, base_dir: str | Path = ".", source: str | Path | None = None,
-               check_paths: bool = False, check_config: bool = True) -> BenchSpec:
+               check_paths: bool = False, check_config: bool = True, fake_keys: bool = False) -> BenchSpec:
     """Validate a spec already loaded from YAML (a dict) and resolve its paths.
 
     Args:
@@ -155,6 +183,7 @@ def parse_spec(data: Any, base_dir: str | Path = ".", source: str | Path | None 
         source: the spec file, for error messages.
         check_paths: raise when a run's ``data`` (or ``config``) does not exist.
         check_config: build each run's configuration now so a typo in ``set`` fails before any run.
+        fake_keys: ``set`` may hold the dry run's ``fake.*`` keys (not checked as settings).
     """
     src = str(source) if source is not None else "benchmark spec"
     base_dir = Path(base_dir)
@@ -163,7 +192,7 @@ def parse_spec(data: Any, base_dir: str | Path = ".", source: str | Path | None 
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
         raise ConfigError(f"{src}: unknown key(s) {', '.join(map(repr, unknown))}; valid: {', '.join(sorted(_TOP_KEYS))}")
-    repeats = _int(data.get("repeats", 1), f"{src}: repeats", 1)
+    repeats = _int(data.get("repeats", 1), f"{src}: repeats", 1, MAX_REPEATS)
     defaults = data.get("defaults") or {}
     if not isinstance(defaults, dict):
         raise ConfigError(f"{src}: defaults must be a mapping of run fields, got {defaults!r}")
@@ -206,20 +235,19 @@ def parse_spec(data: Any, base_dir: str | Path = ".", source: str | Path | None 
             raise ConfigError(f"{where}.dataset: expected a format name (tum, kitti, euroc, 7scenes, folder, video)")
         config = merged.get("config")
         config_path = _expand_path(config, f"{where}.config", base_dir) if config is not None else None
+        if config_path is not None and source is not None and same_path(config_path, source):
+            raise ConfigError(f"{where}.config: {config_path} is this benchmark spec itself; give a vslam settings "
+                              "file (`vslam config` lists the keys)")
         max_frames = merged.get("max_frames")
         if max_frames is not None:
             max_frames = _int(max_frames, f"{where}.max_frames", 1)
         start_frame = _int(merged.get("start_frame", 0), f"{where}.start_frame", 0)
-        run_repeats = _int(merged.get("repeats", repeats), f"{where}.repeats", 1)
+        run_repeats = _int(merged.get("repeats", repeats), f"{where}.repeats", 1, MAX_REPEATS)
         overrides = _overrides(merged.get("set"), f"{where}.set")
         if check_paths:
-            if not data_path.exists():
-                raise ConfigError(f"{where}.data: {data_path} does not exist; fix the path "
-                                  f"(relative paths resolve against {base_dir})")
-            if config_path is not None and not config_path.is_file():
-                raise ConfigError(f"{where}.config: {config_path} is not a file")
+            _check_paths(data_path, config_path, where, base_dir)
         if check_config:
-            _check_config(config_path, overrides, where)
+            _check_config(config_path, overrides, where, fake_keys)
         runs.append(RunSpec(name=name, data=data_path, sensor=sensor, dataset=dataset, config=config_path,
                             overrides=overrides, max_frames=max_frames, start_frame=start_frame,
                             repeats=run_repeats))
@@ -227,17 +255,15 @@ def parse_spec(data: Any, base_dir: str | Path = ".", source: str | Path | None 
                      description=str(data.get("description", "") or ""))
 
 
-def load_spec(path: str | Path, check_paths: bool = False, check_config: bool = True) -> BenchSpec:
+def load_spec(path: str | Path, check_paths: bool = False, check_config: bool = True,
+              fake_keys: bool = False) -> BenchSpec:
     """Read and validate the spec file at ``path`` (see the module docstring for the format)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: benchmark spec not found")
-    try:
-        data = yaml.safe_load(open_text(path, ConfigError).read())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    data = load_yaml_text(open_text(path, ConfigError, max_bytes=MAX_SPEC_BYTES).read(), path, ConfigError)
     return parse_spec(data, base_dir=path.resolve().parent, source=path, check_paths=check_paths,
-                      check_config=check_config)
+                      check_config=check_config, fake_keys=fake_keys)
 
 
 def select_runs(spec: BenchSpec, names: list[str] | None) -> BenchSpec:

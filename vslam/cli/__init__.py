@@ -17,7 +17,7 @@ from vslam.signals import exit_status, interrupt_reason, terminate_as_interrupt
 
 # Sub-command modules, in the order `vslam --help` lists them. Missing ones are skipped so the
 # command keeps working while stages are still being written.
-COMMANDS = ["demo", "run", "eval", "localize", "merge", "calibrate", "reconstruct", "vocab", "bench", "report", "config"]
+COMMANDS = ["demo", "run", "eval", "gt", "localize", "merge", "map", "calibrate", "reconstruct", "vocab", "bench", "report", "config"]
 
 log = logging.getLogger("vslam")
 
@@ -48,7 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     terminate_as_interrupt()  # SIGTERM/SIGHUP stop a run like Ctrl-C: stats.json written, children stopped
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
+        sys.stdout.flush()  # a full or broken standard output fails here, inside this handler
+        return rc
     except VslamError as exc:
         print(f"vslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -58,9 +60,14 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `vslam ... | head`: nothing more to say
         return 1
     except OSError as exc:  # full disk, permissions: the environment, not the input
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"vslam {args.command}: error: {where}{exc.strerror or exc}; free space or fix the permissions "
-              "and rerun", file=sys.stderr)
+        from vslam.outputs import os_error_hint
+
+        if exc.filename:
+            msg = f"{exc.filename}: {exc.strerror or exc}; {os_error_hint(exc, 'check the path and its permissions and rerun')}"
+        else:  # no file named: our own writes name theirs, so it is the standard output
+            msg = (f"cannot write to the standard output ({exc.strerror or exc}): the file or device it is "
+                   "redirected to refused it; redirect it elsewhere")
+        print(f"vslam {args.command}: error: {msg}", file=sys.stderr)
         log.debug("details", exc_info=True)
         return 1
     except MemoryError:

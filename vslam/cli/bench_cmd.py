@@ -39,8 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="Python interpreter of a separate venv holding pyorbslam3 (the baseline runs there "
                         "in a subprocess; default: $VSLAM_ORBSLAM3_PYTHON, else this one if it has pyorbslam3)")
     p.add_argument("--baseline-pace", choices=["mono", "all", "none"], default="mono",
-                   help="feed ORB-SLAM3 frames at the sensor rate for: mono runs (default; unpaced monocular "
-                        "mapping cannot keep up on 2 cores), all runs, or none")
+                   help="feed ORB-SLAM3 frames at the sensor rate for: monocular and inertial runs (default; "
+                        "unpaced, its monocular mapping cannot keep up on 2 cores), all runs, or none")
     p.add_argument("--baseline-pace-rate", type=float, default=1.0, metavar="R",
                    help="paced ORB-SLAM3 runs get frames at R x the sensor rate (default 1; lower it on a "
                         "loaded machine, where ORB-SLAM3's monocular mapping falls behind and resets)")
@@ -67,14 +67,15 @@ def _progress_line(row: dict, done: int, total: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from vslam.bench.harness import make_executor, run_benchmark
-    from vslam.bench.spec import load_spec, select_runs
+    from vslam.bench.spec import MAX_REPEATS, load_spec, select_runs
     from vslam.errors import VslamError
 
-    spec = load_spec(args.spec, check_paths=not args.dry_run, check_config=not args.dry_run)
+    # the dry run checks the spec as the real run does (paths, settings); only the runner is a stand-in
+    spec = load_spec(args.spec, check_paths=True, check_config=True, fake_keys=args.dry_run)
     spec = select_runs(spec, args.runs)
     if args.repeats is not None:
-        if args.repeats < 1:
-            raise VslamError(f"--repeats must be >= 1, got {args.repeats}")
+        if not 1 <= args.repeats <= MAX_REPEATS:
+            raise VslamError(f"--repeats must be in [1, {MAX_REPEATS}], got {args.repeats}")
         spec = replace(spec, runs=tuple(replace(r, repeats=args.repeats) for r in spec.runs))
     workers = args.workers if args.workers is not None else (1 if args.executor == "local" else None)
     executor = make_executor(args.executor, workers=workers, address=args.address)

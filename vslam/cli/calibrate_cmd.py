@@ -8,8 +8,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "calibrate", help="calibrate a camera from checkerboard or ChArUco views",
         description="Calibrate a camera (OpenCV) from an image folder or a video showing a checkerboard "
-                    "(or ChArUco board); prints the RMS reprojection error and outlier views, writes a "
-                    "camera.yaml that `vslam run --camera` reads.",
+                    "(or ChArUco board); prints the RMS reprojection error, each view's error and outlier views, "
+                    "warns about a principal point far from the centre, extreme distortion or parts of the image "
+                    "no view covers (named), and writes a camera.yaml that `vslam run --camera` reads.",
     )
     p.add_argument("source", help="image folder or video file")
     p.add_argument("--board", required=True, metavar="COLSxROWS",

@@ -44,8 +44,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"ATE: {res['ate_before']:.3f} m before, {res['ate_after']:.3f} m after")
         print(f"plot: {res['plot']}")
         return 0
-    res = demo.slam_demo(args.output, args.frames, args.seed, sensor=args.sensor,
-                         overrides=tuple(args.overrides), progress=not args.no_progress)
+    from vslam.cli.common import compile_notice
+
+    with compile_notice():
+        res = demo.slam_demo(args.output, args.frames, args.seed, sensor=args.sensor,
+                             overrides=tuple(args.overrides), progress=not args.no_progress)
     s = res["stats"]
     print(f"synthetic sequence ({args.frames} frames, TUM layout): {res['sequence']}")
     print(f"tracked {s['tracked']}/{s['frames']} frames ({s.get('lost', 0)} lost), {s.get('keyframes', 0)} keyframes, "

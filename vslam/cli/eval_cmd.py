@@ -45,6 +45,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--kitti", action="store_true", help="also compute the KITTI odometry metric")
     p.add_argument("--lengths", type=float, nargs="+", metavar="M",
                    help="KITTI segment lengths in m (default 100 200 ... 800; e.g. 5 10 20 for short runs)")
+    p.add_argument("--body-to-cam", metavar="SENSOR.yaml|none",
+                   help="a EuRoC body-frame reference (state_groundtruth_estimate0, detected) is converted to the "
+                        "camera with the T_BS of this sensor.yaml (default: mav0/cam0/sensor.yaml beside it); "
+                        "none: compare it as it is")
     p.add_argument("--json", metavar="OUT.json", help="write all numbers to a JSON file")
     p.add_argument("--plot", metavar="OUT.png", help="write a plot (top view and ATE along time)")
     p.set_defaults(func=run)
@@ -73,13 +77,31 @@ def monocular_run(est_path: str | Path) -> bool:
     return False
 
 
+def _body_to_camera(args: argparse.Namespace):
+    """The conversion of a EuRoC body-frame reference to the camera
+    (:func:`vslam.datasets.gt_frames.body_frame_reference`), or None: not one, ``--body-to-cam
+    none``, or the estimate is body-frame too."""
+    from vslam.datasets.gt_frames import body_frame_reference, is_euroc_body_gt
+
+    choice = args.body_to_cam
+    if (choice or "").strip().lower() == "none" or args.gt_format not in (None, "euroc") or is_euroc_body_gt(args.est):
+        return None
+    return body_frame_reference(args.gt, choice)
+
+
 def run(args: argparse.Namespace) -> int:
     from vslam.eval.evaluate import evaluate_files
-    from vslam.outputs import atomic_write_text, check_output_file
+    from vslam.outputs import atomic_write_text, check_output_file, refuse_inputs, same_path, strict_json
 
+    run_files = [Path(args.est).resolve().parent / n for n in ("stats.json", "config.yaml")]  # monocular_run reads them
+    inputs = (args.gt, args.est, args.gt_times, args.est_times, args.body_to_cam,
+              *[p for p in run_files if p.is_file()])
     for out_arg, what in ((args.json, "--json file"), (args.plot, "--plot file")):
         if out_arg:
+            refuse_inputs(out_arg, inputs, what)  # never write the report over a trajectory
             check_output_file(out_arg, what)  # refuse a folder before the work, not after printing
+    if args.json and args.plot and same_path(args.json, args.plot):
+        raise TrajectoryError(f"{args.json}: given as both --json and --plot; choose two files")
     align, why = args.align, "as asked"
     if align is None:
         mono = monocular_run(args.est)
@@ -87,24 +109,27 @@ def run(args: argparse.Namespace) -> int:
         why = ("default for a monocular run (its scale is arbitrary)" if mono
                else "default; pass --align sim3 for a monocular estimate")
     dup = args.duplicates.replace("-", "_") if args.duplicates else None
+    body = _body_to_camera(args)
     overrides = {}
     if args.by_index:
         overrides["by_index"] = True
     result = evaluate_files(
         args.est, args.gt, est_format=args.est_format, gt_format=args.gt_format,
         est_times=args.est_times, gt_times=args.gt_times, duplicates=dup or "error",
-        gt_duplicates=dup or "keep_last", align=align, align_first=args.align_first, max_diff=args.max_diff, offset=args.offset,
+        gt_duplicates=dup or "keep_last", gt_T_right=body.T_body_cam if body else None, align=align, align_first=args.align_first, max_diff=args.max_diff, offset=args.offset,
         rpe_delta=args.delta, rpe_delta_unit=args.delta_unit, rpe_all_pairs=args.all_pairs,
         kitti=args.kitti or bool(args.lengths), kitti_lengths=tuple(args.lengths) if args.lengths else None,
         **overrides,
     )
+    if body is not None:
+        print(body.line())
     print(result.summary())
     print(f"alignment {align}: {why}")
     if args.json:
         out = Path(args.json)
         if not out.parent.is_dir():
             raise TrajectoryError(f"{out}: cannot write the JSON, folder {out.parent} does not exist")
-        atomic_write_text(check_output_file(out, "--json file"), json.dumps(result.to_dict(), indent=2) + "\n")
+        atomic_write_text(check_output_file(out, "--json file"), strict_json(result.to_dict(), indent=2) + "\n")
         print(f"wrote {out}")
     if args.plot:
         from vslam.eval.plot import plot_evaluation

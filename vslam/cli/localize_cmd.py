@@ -5,6 +5,8 @@ import argparse
 import logging
 from pathlib import Path
 
+from vslam.cli.common import add_gt_argument, ate_line, compile_notice
+
 log = logging.getLogger(__name__)
 
 
@@ -28,6 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--start-frame", type=int, default=0, help="first frame to localize")
     p.add_argument("--max-frames", type=int, help="stop after N frames")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_gt_argument(p)
     p.set_defaults(func=run)
     return p
 
@@ -35,15 +38,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from vslam.localize import localize_path
 
-    result = localize_path(
-        args.map_dir, args.path, args.output, sensor=args.sensor, dataset=args.dataset,
-        start_frame=args.start_frame, max_frames=args.max_frames, config=args.config, overrides=args.overrides,
-        progress=not args.no_progress, camera=args.camera,
-    )
+    with compile_notice():
+        result = localize_path(
+            args.map_dir, args.path, args.output, sensor=args.sensor, dataset=args.dataset,
+            start_frame=args.start_frame, max_frames=args.max_frames, config=args.config, overrides=args.overrides,
+            progress=not args.no_progress, camera=args.camera, gt=args.gt,
+        )
+    from vslam.localize import counts_line
+
     s = result.stats
-    print(f"{s['localized']}/{s['frames']} frames localized ({s['tracked']} tracked, "
-          f"{s['relocalizations']} relocalized), {s['lost']} lost, {s['fps']:.1f} frames/s")
-    if "ate_rmse" in s:
-        print(f"ATE RMSE {s['ate_rmse']:.4f} m over {s.get('matched_poses', 0)} poses")
+    print(f"{counts_line(s)}, {s['fps']:.1f} frames/s, in the map of {s.get('map', args.map_dir)}")
+    if ate_line(s):
+        print(ate_line(s))
     print(f"results in {Path(args.output)}")
     return 0

@@ -11,7 +11,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Merge the map of MAP_B into the map of MAP_A (both `vslam run` output folders): the overlap "
                     "is found by place recognition and geometric verification, B is aligned (SE(3); Sim(3) for "
                     "monocular maps), appended, and the seam welded (point fusion, local BA, global BA). Writes "
-                    "OUT/map/, OUT/keyframes.txt (TUM, in MAP_A's frame), OUT/sparse.ply and OUT/stats.json. "
+                    "OUT/map/, OUT/keyframes.txt (TUM, in MAP_A's frame), OUT/sparse.ply, OUT/merge.png (both maps' "
+                    "keyframes, the seam, the alignment's inliers and residual) and OUT/stats.json. "
                     "Maps that do not overlap are an error.",
     )
     p.add_argument("map_a", help="the reference map: a `vslam run` output folder (containing map/)")
@@ -34,5 +35,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"merged {s['keyframes_b']} keyframes of B into {s['keyframes_a']} of A: {s['seam_keyframes']} seam "
           f"keyframes, scale {s['scale']:.4f}, {s['fused_points']} points fused, {s['good_keyframes']} keyframes, "
           f"{s['points']} points")
+    print(f"alignment: {s['alignment_inliers']} of {s['alignment_correspondences']} seam correspondences inliers, "
+          f"RMS residual {s['alignment_residual']:.4f} {'(map A units)' if s.get('sensor') == 'mono' else 'm'}"
+          + (f"; figure {s['figure']}" if s.get("figure") else ""))
     print(f"results in {Path(args.output)}")
     return 0

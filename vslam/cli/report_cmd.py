@@ -16,6 +16,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", required=True, help="HTML file to write")
     p.add_argument("--no-run-reports", action="store_true",
                    help="bench folders: do not write a report per run")
+    p.add_argument("--gt", metavar="FILE|none",
+                   help="run folders: ground truth to compare with (TUM, KITTI or EuRoC trajectory; default: "
+                        "groundtruth.txt in the folder, else the one the run used); none: no ground truth")
     p.set_defaults(func=run)
     return p
 
@@ -23,6 +26,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from vslam.report.html import write_report
 
-    path = write_report(args.folder, args.output, run_reports=not args.no_run_reports)
+    path = write_report(args.folder, args.output, run_reports=not args.no_run_reports, gt=args.gt)
     print(f"report: {path}")
     return 0

@@ -58,6 +58,22 @@ def _save(voc, output: str, fmt: str | None) -> Path:
     return voc.save(output)
 
 
+def _refuse_sources(output: str, sources: list[str]) -> None:
+    """The vocabulary never lands on a source: an image given, or an image, list or calibration file
+    in a source folder (which the readers would take as part of the sequence)."""
+    from vslam.outputs import IMAGE_SUFFIXES, check_output_file, lies_inside, refuse_inputs
+
+    refuse_inputs(output, [s for s in sources if s != "default"], "vocabulary")
+    check_output_file(output, "vocabulary")
+    out = Path(output)
+    for src in sources:
+        if src != "default" and Path(src).is_dir() and lies_inside(out, src) and (
+                out.suffix.lower() in IMAGE_SUFFIXES
+                or (out.exists() and out.suffix.lower() in (".txt", ".csv", ".yaml", ".yml"))):
+            raise ConfigError(f"{output}: lies in the source folder {src} and may be one of its images or lists; "
+                              "write the vocabulary elsewhere")
+
+
 def run_train(args: argparse.Namespace) -> int:
     from vslam.api import progress_bar
     from vslam.loop.config import VocabularyConfig
@@ -68,6 +84,7 @@ def run_train(args: argparse.Namespace) -> int:
                               direct_index_level=min(2, args.levels))
     if args.every < 1 or args.features < 1:
         raise ConfigError("--every and --features must be >= 1")
+    _refuse_sources(args.output, args.sources)
     t0 = time.perf_counter()
     sets = []
     real = [s for s in args.sources if s != "default"]
@@ -98,7 +115,10 @@ def run_info(args: argparse.Namespace) -> int:
 
 def run_convert(args: argparse.Namespace) -> int:
     from vslam.loop.vocabulary import Vocabulary
+    from vslam.outputs import check_output_file, refuse_inputs
 
+    refuse_inputs(args.output, (args.input,), "converted vocabulary")
+    check_output_file(args.output, "vocabulary")
     voc = Vocabulary.load(args.input)
     path = _save(voc, args.output, None)
     print(f"{voc} -> {path}")

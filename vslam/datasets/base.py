@@ -73,11 +73,16 @@ class Dataset:
     root: Path
     #: iteration raises once more than this fraction of the requested frames failed to decode
     max_skip_fraction: float = 0.1
+    #: IMU samples (:class:`vslam.inertial.ImuMeasurements`) and calibration, for readers that have
+    #: them (EuRoC ``imu0/``); None otherwise
+    imu = None
+    imu_calibration = None
 
     def __init__(self) -> None:
         self._skipped: set[int] = set()
         self._timestamps = np.zeros(0)
         self._gt_cache: tuple[np.ndarray, np.ndarray] | None = None
+        self._gt_error: Exception | None = None  # why the ground truth could not be read
 
     @property
     def skipped(self) -> int:
@@ -169,16 +174,32 @@ class Dataset:
         return None
 
     def _gt(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if self._gt_error is not None:
+            raise self._gt_error
         if self._gt_cache is None:
-            res = self._gt_poses()
+            try:
+                res = self._gt_poses()
+            except Exception as exc:  # read once: the same error for every later call
+                self._gt_error = exc
+                raise
             if res is None:
                 return None
             self._gt_cache = res
         return self._gt_cache
 
+    def ground_truth_file(self) -> Path | None:
+        """The file the ground truth is read from (``_gt_file`` of a reader that sets it), or None
+        when there is none; :func:`vslam.datasets.ground_truth.resolve_ground_truth` names it."""
+        path = getattr(self, "_gt_file", None)
+        return Path(path) if path is not None and Path(path).is_file() else None
+
     def gt_pose(self, i: int) -> np.ndarray | None:
-        """Ground-truth ``T_world_cam`` of frame ``i`` or None."""
-        gt = self._gt()
+        """Ground-truth ``T_world_cam`` of frame ``i`` or None (also when the ground truth cannot be
+        read: a frame is never lost over it; :meth:`ground_truth` raises, for the run to warn)."""
+        try:
+            gt = self._gt()
+        except Exception:  # noqa: BLE001 - see resolve_ground_truth
+            return None
         if gt is None or not gt[1][i]:
             return None
         return gt[0][i].copy()

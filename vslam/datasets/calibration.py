@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam.datasets.camera_yaml import load_yaml as _load_yaml, read_camera_yaml
+from vslam.datasets.calib_checks import check_camera, check_extras, check_file_size, number, numbers
+from vslam.datasets.camera_yaml import load_yaml as _load_yaml, pixels, read_camera_yaml
 from vslam.errors import CalibrationError
 from vslam.geometry.camera import PinholeCamera
 from vslam.geometry.lie import inv_se3
@@ -116,13 +117,7 @@ class _Fields:
         v = self.get(key, default)
         if v is None:
             return v
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            raise CalibrationError(f"{self.path}: {FORMAT_NAMES[self.fmt]}: '{key}' = {v!r} is not a number") from None
-        if not np.isfinite(x):
-            raise CalibrationError(f"{self.path}: {FORMAT_NAMES[self.fmt]}: '{key}' = {v!r} is not finite")
-        return x
+        return number(v, key, f"{self.path}: {FORMAT_NAMES[self.fmt]}")  # not a boolean, not text, finite
 
     def array(self, key: str, size: int | tuple[int, ...] | None = None, default=...) -> np.ndarray | None:
         v = self.get(key, default)
@@ -132,10 +127,9 @@ class _Fields:
             if "data" not in v:
                 raise CalibrationError(f"{self.path}: {FORMAT_NAMES[self.fmt]}: '{key}' has no 'data' list")
             v = v["data"]
-        try:
-            a = np.asarray(v, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise CalibrationError(f"{self.path}: {FORMAT_NAMES[self.fmt]}: '{key}' is not a list of numbers") from None
+        if not isinstance(v, (list, tuple)):
+            raise CalibrationError(f"{self.path}: {FORMAT_NAMES[self.fmt]}: '{key}' is not a list of numbers")
+        a = np.asarray(numbers(v, key, f"{self.path}: {FORMAT_NAMES[self.fmt]}"), dtype=float)
         sizes = (size,) if isinstance(size, int) else size
         if sizes is not None and a.size not in sizes:
             raise CalibrationError(
@@ -150,10 +144,12 @@ def _dist5(d: np.ndarray | list | None) -> tuple[float, ...]:
 
 
 def _camera(fx, fy, cx, cy, w, h, dist, model: str, where: str, baseline=None) -> PinholeCamera:
+    """The camera of a calibration file, its numbers checked (:func:`calib_checks.check_camera`)."""
     if fx <= 0 or fy <= 0:
         raise CalibrationError(f"{where}: focal lengths must be positive (fx={fx}, fy={fy})")
     if w is None or h is None or w <= 0 or h <= 0:
         raise CalibrationError(f"{where}: the image size is unknown; add width and height")
+    w, h = pixels(w, "width", where), pixels(h, "height", where)
     d = [] if dist is None else [float(x) for x in dist]
     if model == "equidistant":
         if len(d) < 4:
@@ -165,7 +161,7 @@ def _camera(fx, fy, cx, cy, w, h, dist, model: str, where: str, baseline=None) -
             if np.any(extra != 0):
                 raise CalibrationError(f"{where}: only 5 distortion coefficients (k1 k2 p1 p2 k3) are supported, got {len(d)}")
         dist_t = _dist5(d)
-    return PinholeCamera(float(fx), float(fy), float(cx), float(cy), int(w), int(h), dist_t, baseline)
+    return check_camera(PinholeCamera(float(fx), float(fy), float(cx), float(cy), w, h, dist_t, baseline), where)
 
 
 def _size(f: _Fields, wkey: str, hkey: str, image_size) -> tuple[float | None, float | None]:
@@ -255,7 +251,8 @@ def _read_orbslam3(f: _Fields, image_size) -> Calibration:
     if "RGBD.DepthMapFactor" in f.data:
         extras["depth_scale"] = f.number("RGBD.DepthMapFactor")
     if ctype.lower() == "rectified" and "Stereo.b" in f.data:
-        left = PinholeCamera(left.fx, left.fy, left.cx, left.cy, left.width, left.height, left.dist, f.number("Stereo.b"))
+        left = check_camera(PinholeCamera(left.fx, left.fy, left.cx, left.cy, left.width, left.height, left.dist,
+                                          f.number("Stereo.b")), str(f.path))
         return Calibration(left, "orbslam3", model, extras=extras, source=str(f.path))
     if "Camera2.fx" in f.data:
         T_c1_c2 = _rigid(f.array("Stereo.T_c1_c2", (12, 16)), str(f.path))
@@ -302,7 +299,7 @@ def _read_vslam(path: Path, data: dict, image_size, fmt: str) -> Calibration:
         extras = {k: f.number(k) for k in ("fps", "depth_scale", "balance") if k in data}
         if not 0.0 <= extras.get("balance", 0.0) <= 1.0:
             raise CalibrationError(f"{path}: balance must be in [0, 1] (0: only valid pixels, 1: the whole field of view)")
-        return Calibration(cam, fmt, model, extras=extras, source=str(path))
+        return Calibration(cam, fmt, model, extras=check_extras(extras, str(path)), source=str(path))
     try:
         cam, extras = read_camera_yaml(path, image_size)
     except CalibrationError as exc:
@@ -334,7 +331,11 @@ def _read_filestorage(path: Path) -> dict:
     """Top-level nodes of an OpenCV FileStorage file (XML/YAML/JSON) as plain Python values."""
     import cv2
 
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):  # e.g. an XML file cut off mid-element
+        raise CalibrationError(f"{path}: OpenCV cannot parse this file as FileStorage XML/YAML (cut off or "
+                               "malformed); fix or re-export it") from None
     try:
         if not fs.isOpened():
             raise CalibrationError(f"{path}: OpenCV cannot parse this file as FileStorage XML/YAML")
@@ -399,6 +400,7 @@ def read_camera_file(path: str | Path, image_size: tuple[int, int] | None = None
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"{path}: camera file not found (or name a TUM preset: fr1, fr2, fr3)")
+    check_file_size(path)  # before any parser sees it
     if path.suffix.lower() == ".txt":
         return _read_kitti(path, image_size)
     if path.suffix.lower() in (".xml", ".json"):
@@ -417,7 +419,9 @@ def read_camera_file(path: str | Path, image_size: tuple[int, int] | None = None
     f = _Fields(data, path, fmt)
     reader = {"kalibr": _read_kalibr, "orbslam3": _read_orbslam3, "ros": _read_ros, "opencv": _read_opencv,
               "euroc": _read_euroc}[fmt]
-    return reader(f, image_size)
+    cal = reader(f, image_size)
+    check_extras(cal.extras, str(path))
+    return cal
 
 
 def read_pinhole_calibration(path: str | Path, image_size: tuple[int, int] | None = None,

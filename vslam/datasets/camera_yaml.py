@@ -5,25 +5,21 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import numpy as np
-
+from vslam.datasets.calib_checks import check_camera, check_extras, check_file_size
+from vslam.datasets.calib_checks import number as _number, numbers as _numbers
 from vslam.errors import CalibrationError
 from vslam.geometry.camera import PinholeCamera
-from vslam.textfile import open_text
+from vslam.textfile import load_yaml_text, open_text
 
 
 def load_yaml(path: Path) -> dict:
     """A camera YAML as a mapping (OpenCV FileStorage directives and tags dropped)."""
-    import yaml
-
+    check_file_size(path)  # before parsing: a calibration is a few KB
     text = open_text(path, CalibrationError).read()
     # OpenCV FileStorage YAML: drop the '%YAML:1.0' directive and '!!opencv-matrix' tags
     text = re.sub(r"^%YAML[: ]?1\.0\s*$", "", text, flags=re.M)
     text = text.replace("!!opencv-matrix", "")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: camera file is not valid YAML ({exc.__class__.__name__}); fix its syntax") from None
+    data = load_yaml_text(text, path, CalibrationError)  # aliases (memory bombs) refused
     if not isinstance(data, dict):
         raise CalibrationError(f"{path}: camera file must be a mapping with keys fx, fy, cx, cy, width, height")
     return data
@@ -49,10 +45,10 @@ def read_camera_yaml(path: str | Path, image_size: tuple[int, int] | None = None
         dist = [g.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")]
         g["dist"] = dist
         if "bf" in g and "fx" in g:
-            try:
-                g["baseline"] = float(g["bf"]) / float(g["fx"])
-            except (TypeError, ValueError, ZeroDivisionError):
-                raise CalibrationError(f"{path}: Camera.bf / Camera.fx is not a number") from None
+            bf, fx = _number(g["bf"], "Camera.bf", str(path)), _number(g["fx"], "Camera.fx", str(path))
+            if fx <= 0:
+                raise CalibrationError(f"{path}: focal lengths must be positive (Camera.fx={fx})")
+            g["baseline"] = bf / fx
         if "DepthMapFactor" in data:
             g["depth_scale"] = data["DepthMapFactor"]
         data = g
@@ -65,13 +61,7 @@ def read_camera_yaml(path: str | Path, image_size: tuple[int, int] | None = None
                     f"(optional dist, baseline, depth_scale, fps)"
                 )
             return default
-        try:
-            v = float(data[key])
-        except (TypeError, ValueError):
-            raise CalibrationError(f"{path}: camera '{key}' = {data[key]!r} is not a number") from None
-        if not np.isfinite(v):
-            raise CalibrationError(f"{path}: camera '{key}' = {data[key]!r} is not finite")
-        return v
+        return _number(data[key], key, str(path))  # a YAML boolean or text is not a number
 
     fx, fy, cx, cy = (number(k) for k in ("fx", "fy", "cx", "cy"))
     if fx <= 0 or fy <= 0:
@@ -86,10 +76,9 @@ def read_camera_yaml(path: str | Path, image_size: tuple[int, int] | None = None
     if dist_raw is not None:
         if isinstance(dist_raw, dict) and "data" in dist_raw:
             dist_raw = dist_raw["data"]
-        try:
-            d = [float(x) for x in dist_raw]
-        except (TypeError, ValueError):
-            raise CalibrationError(f"{path}: 'dist' must be a list [k1, k2, p1, p2, k3], got {dist_raw!r}") from None
+        if not isinstance(dist_raw, (list, tuple)):
+            raise CalibrationError(f"{path}: 'dist' must be a list [k1, k2, p1, p2, k3], got {dist_raw!r}")
+        d = _numbers(dist_raw, "dist", str(path))
         if not 4 <= len(d) <= 5:
             raise CalibrationError(f"{path}: 'dist' needs 4 or 5 numbers [k1, k2, p1, p2, (k3)], got {len(d)}")
         dist = tuple(d + [0.0] * (5 - len(d)))
@@ -107,5 +96,12 @@ def read_camera_yaml(path: str | Path, image_size: tuple[int, int] | None = None
         if fps <= 0:
             raise CalibrationError(f"{path}: fps must be positive, got {fps}")
         extras["fps"] = fps
-    cam = PinholeCamera(fx, fy, cx, cy, int(w), int(h), dist, baseline)
-    return cam, extras
+    cam = PinholeCamera(fx, fy, cx, cy, pixels(w, "width", path), pixels(h, "height", path), dist, baseline)
+    return check_camera(cam, str(path)), check_extras(extras, str(path))
+
+
+def pixels(value: float, key: str, path: Path | str) -> int:
+    """An image side: a whole number of pixels."""
+    if not float(value).is_integer():
+        raise CalibrationError(f"{path}: '{key}' = {value!r} is not a whole number of pixels")
+    return int(value)

@@ -18,6 +18,13 @@ Ground truth, first found: ``groundtruth_cam0_tum.txt`` (TUM, already ``T_world_
 ``T_BS``: ``T_world_cam0 = T_world_body * T_BS``); an ORB-SLAM3 ``*_GT_left_cam.txt`` (ns CSV of
 cam0 positions whose quaternion is stored conjugated, i.e. ``R_cam_world``). GT is interpolated to
 the image timestamps (SLERP, max gap 0.1 s).
+
+IMU (read lazily, on first use, so a non-inertial run never reads it): ``mav0/imu0/data.csv`` is
+:attr:`EurocDataset.imu` (:class:`vslam.inertial.ImuMeasurements`, checked, and checked to overlap
+the images) and ``mav0/imu0/sensor.yaml`` with cam0's ``T_BS`` is :attr:`EurocDataset.imu_calibration`
+(``T_imu_cam`` of the raw cam0; for rectified stereo frames use
+``imu_calibration.with_camera(T_cam0_rect)``, :attr:`EurocDataset.T_cam0_rect`). Both are None
+without ``imu0/data.csv``.
 """
 from __future__ import annotations
 
@@ -35,11 +42,13 @@ from vslam.datasets.base import (
 )
 from vslam.datasets.camera_yaml import load_yaml
 from vslam.datasets.frame import Frame
+from vslam.datasets.imu import euroc_imu_calibration, load_imu_csv
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
 from vslam.textfile import open_text
 from vslam.trajectory import Trajectory, read_euroc, read_tum
 from vslam.geometry.camera import PinholeCamera
 from vslam.geometry.lie import inv_se3
+from vslam.inertial import ImuCalibration, ImuMeasurements, check_overlap
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +163,35 @@ class EurocDataset(Dataset):
         missing = [p for p in self._left if not p.is_file()]
         if missing and (not self._left[0].is_file() or len(missing) > 0.1 * len(self._left)):
             raise DatasetError(f"{missing[0]}: {len(missing)} of {len(self._left)} listed images are missing")
+        self.imu_path: Path | None = mav0 / "imu0" / "data.csv" if (mav0 / "imu0" / "data.csv").is_file() else None
+        self._imu: ImuMeasurements | None = None
+        self._imu_calibration: ImuCalibration | None = None
+
+    # -- IMU (lazy) -------------------------------------------------------------------------------
+    @property
+    def imu(self) -> ImuMeasurements | None:
+        """The ``mav0/imu0/data.csv`` samples (read and checked on first use), or None."""
+        if self._imu is None and self.imu_path is not None:
+            imu = load_imu_csv(self.imu_path)
+            calib = self.imu_calibration
+            check_overlap(imu, float(self._timestamps[0]), float(self._timestamps[-1]), str(self.imu_path),
+                          calib.time_offset if calib is not None else 0.0)
+            self._imu = imu
+        return self._imu
+
+    @property
+    def imu_calibration(self) -> ImuCalibration | None:
+        """``imu0/sensor.yaml`` noise values and cam0's ``T_BS`` as ``T_imu_cam``, or None without an IMU."""
+        if self._imu_calibration is None and self.imu_path is not None:
+            self._imu_calibration = euroc_imu_calibration(self.imu_path.parent / "sensor.yaml", self.T_body_cam0)
+        return self._imu_calibration
+
+    @property
+    def T_cam0_rect(self) -> np.ndarray:
+        """``(4, 4)`` frame camera -> raw cam0 (the rectifying rotation for stereo, identity for mono)."""
+        T = np.eye(4)
+        T[:3, :3] = self._R_cam0_rect
+        return T
 
     def _rectify(self) -> None:
         """Stereo rectification (Bouguet, via ``cv2.stereoRectify``) and the remap tables."""

@@ -131,8 +131,13 @@ def load_depth(
 
     Args:
         scale: PNG units per metre (TUM 5000, 7-Scenes 1000).
-        shape: expected ``(H, W)`` (the colour image's); a mismatch raises :class:`DatasetError`.
+        shape: expected ``(H, W)`` (the colour image's).
         invalid: raw values meaning "no measurement" (7-Scenes uses 0 and 65535).
+
+    Raises:
+        CorruptFrameError: the file is missing, empty, cannot be decoded, is not single-channel
+            16-bit (an 8-bit, colour or float32 TIFF frame) or has the wrong size; the dataset
+            iterator skips and counts such a frame (fatal only for the first frame or too many).
     """
     import cv2
 
@@ -142,8 +147,8 @@ def load_depth(
     raw = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise CorruptFrameError(f"{path}: depth image cannot be decoded (truncated or not a PNG); re-extract it")
-    if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise DatasetError(
+    if raw.ndim != 2 or raw.dtype != np.uint16:  # one such frame is skipped like a corrupt one
+        raise CorruptFrameError(
             f"{path}: depth must be a single-channel 16-bit PNG ({scale:g} units per metre), got "
             f"{raw.dtype} with shape {raw.shape}; 8-bit or colour depth cannot hold metric depth"
         )

@@ -27,6 +27,7 @@ from vslam.datasets.base import (
     require_dir,
     require_file,
 )
+from vslam.datasets.calib_checks import check_camera, check_file_size
 from vslam.datasets.frame import Frame
 from vslam.errors import CalibrationError, DatasetError, TrajectoryError
 from vslam.textfile import open_text
@@ -41,6 +42,7 @@ def read_kitti_calib(path: str | Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"{path}: KITTI calib.txt not found; it must hold at least 'P0:' (and 'P1:' for stereo)")
+    check_file_size(path)
     out: dict[str, np.ndarray] = {}
     k = 0
     with open_text(path, CalibrationError) as fh:
@@ -126,10 +128,10 @@ class KittiDataset(Dataset):
         check_timestamps(self._timestamps, times_path)
 
         first = load_image(self._left[0], grayscale=False)
-        self.camera = PinholeCamera(
+        self.camera = check_camera(PinholeCamera(
             float(P0[0, 0]), float(P0[1, 1]), float(P0[0, 2]), float(P0[1, 2]),
             first.shape[1], first.shape[0], baseline=baseline,
-        )
+        ), f"{root / 'calib.txt'}: P0")
         self.frame_rate = 10.0
         self._right_dir = right_dir if self.sensor == "stereo" else None
         seq = root.name

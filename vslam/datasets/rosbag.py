@@ -10,14 +10,17 @@ topic given explicitly is depth when its name says ``depth`` or its encoding is 
 Messages: ``Image`` with ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``mono8`` (colour), ``16UC1``
 (depth in millimetres, as ROS does; ``depth_scale`` of a ``--camera`` file overrides) and
 ``32FC1`` (depth in metres); ``CompressedImage`` (PNG/JPEG, and ``compressedDepth``).
-Timestamps are the message headers' stamps. Depth and right images are paired with the colour
+Timestamps are the message headers' stamps, which must increase in recording order on each image
+topic (all equal, repeated or going back in time: a :class:`DatasetError` naming the topic, since
+frames would collapse onto one timestamp). Depth and right images are paired with the colour
 image of the nearest stamp (at most ``max_difference`` seconds apart).
 
 Calibration: the ``camera`` argument (any format of :mod:`vslam.datasets.calibration`), else
 the ``sensor_msgs/CameraInfo`` topic beside the colour topic (same namespace) in the bag. For
 stereo, the right ``CameraInfo`` gives the baseline (``P[0, 3] = -fx * b``); images whose info has
 distortion or a rectifying rotation are rectified with the info's ``R`` and ``P``.
-Ground truth: a TUM-format ``groundtruth.txt`` beside the bag file (or in the ROS 2 bag folder).
+Ground truth: a TUM-format ``groundtruth.txt`` in the ROS 2 bag folder, else beside the bag.
+IMU (inertial sensors, read on first use): the ``sensor_msgs/Imu`` topic, :mod:`vslam.datasets.rosbag_imu`.
 """
 from __future__ import annotations
 
@@ -29,9 +32,12 @@ from typing import Iterator
 import numpy as np
 
 from vslam.datasets.base import CorruptFrameError, Dataset, interpolate_poses
+from vslam.datasets.calib_checks import check_camera
 from vslam.datasets.frame import Frame
+from vslam.datasets.rosbag_imu import IMU_TYPE, bag_imu_calibration, choose_imu_topic, read_imu_topic, split_imu_topics
 from vslam.errors import CalibrationError, DatasetError
 from vslam.geometry.camera import PinholeCamera
+from vslam.inertial import ImuCalibration, ImuMeasurements
 from vslam.trajectory import associate_timestamps
 
 log = logging.getLogger(__name__)
@@ -50,6 +56,24 @@ def is_bag(path: Path) -> bool:
 def _stamp(msg) -> float:
     st = msg.header.stamp
     return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+def _check_stamps(path: Path, topic: str, stamps: np.ndarray) -> None:
+    """Header stamps (in recording order) that are all equal, repeat or go back in time give no
+    timing (frames would collapse onto one timestamp, or be reordered): a :class:`DatasetError`
+    naming the bag and the topic."""
+    if len(stamps) < 2:
+        return
+    d = np.diff(stamps)
+    if np.all(d == 0):
+        raise DatasetError(f"{path}: topic {topic}: all {len(stamps)} header stamps are {stamps[0]:.9f} s; the "
+                           "messages carry no timing (the recording driver must set header.stamp)")
+    if np.any(d <= 0):
+        i = int(np.argmax(d <= 0)) + 1
+        what = "repeats the stamp" if d[i - 1] == 0 else "goes back in time from"
+        raise DatasetError(f"{path}: topic {topic}: header stamps are not increasing (message {i + 1}, stamped "
+                           f"{stamps[i]:.9f} s, {what} message {i}, {stamps[i - 1]:.9f} s); fix the stamps of the "
+                           "recording")
 
 
 def decode_image(msg, msgtype: str) -> tuple[np.ndarray, str]:
@@ -151,6 +175,8 @@ class RosbagDataset(Dataset):
                 t.connections.append(c)
             images = {k: v for k, v in by_topic.items() if v.msgtype in IMAGE_TYPES}
             infos = {k: v for k, v in by_topic.items() if v.msgtype == INFO_TYPE}
+            self._imu_topics = {k: v for k, v in by_topic.items() if v.msgtype == IMU_TYPE}
+            topics, self._imu_requested = split_imu_topics(topics, self._imu_topics)
             color, second = self._choose_topics(images, topics)
             self.topics = [color] + ([second] if second else [])
             color_idx = self._index(reader, images[color])
@@ -188,12 +214,43 @@ class RosbagDataset(Dataset):
         self._timestamps = t_color[keep]
         self._bag_ns = bag_color[keep]
         self._rectify = None
+        self.T_cam0_rect = np.eye(4)  # frame camera -> the raw camera the calibration refers to
         self._depth_scale = ROS_DEPTH_SCALE
         self._setup_camera(camera, cam_info)
         span = self._timestamps[-1] - self._timestamps[0] if len(self._timestamps) > 1 else 0.0
         self.frame_rate = (len(self._timestamps) - 1) / span if span > 0 else 30.0
-        gt = [p / "groundtruth.txt" for p in (path.parent, path)] if path.is_dir() else [path.parent / "groundtruth.txt"]
+        # the bag's own folder first: a groundtruth.txt inside a ROS 2 bag folder wins over one beside it
+        gt = [p / "groundtruth.txt" for p in (path, path.parent)] if path.is_dir() else [path.parent / "groundtruth.txt"]
         self._gt_file = next((g for g in gt if g.is_file()), None)
+        self._imu: ImuMeasurements | None = None
+        self._imu_calibration: ImuCalibration | None = None
+
+    # -- IMU (lazy: a run without -inertial never reads it; vslam.datasets.rosbag_imu) -----------------
+    @property
+    def imu(self) -> ImuMeasurements | None:
+        """The samples of the bag's ``sensor_msgs/Imu`` topic (read and checked on first use)."""
+        if self._imu is None:
+            from vslam.inertial import check_overlap
+
+            topic = choose_imu_topic(self.path, self._imu_topics, self._imu_requested)
+            reader = self._open()
+            try:
+                conns = [c for c in reader.connections if c.topic == topic]
+                imu = read_imu_topic(reader, conns, f"{self.path}: topic {topic}")
+            finally:
+                reader.close()
+            check_overlap(imu, float(self._timestamps[0]), float(self._timestamps[-1]), f"{self.path}: topic {topic}",
+                          self.imu_calibration.time_offset)
+            self._imu = imu
+        return self._imu
+
+    @property
+    def imu_calibration(self) -> ImuCalibration | None:
+        """From the calibration files in or beside the bag (:func:`bag_imu_calibration`); ``T_imu_cam`` of
+        the raw camera (:func:`vslam.datasets.imu.dataset_imu` turns it to the frames' with ``T_cam0_rect``)."""
+        if self._imu_calibration is None:
+            self._imu_calibration = bag_imu_calibration(self.path)
+        return self._imu_calibration
 
     # -- opening ---------------------------------------------------------------------------------
     def _open(self):
@@ -229,11 +286,13 @@ class RosbagDataset(Dataset):
         return color[0], second
 
     def _index(self, reader, topic: _Topic) -> tuple[np.ndarray, np.ndarray]:
-        """``(header stamps [s], bag times [ns])`` of a topic, sorted by stamp."""
+        """``(header stamps [s], bag times [ns])`` of a topic; the stamps must increase in recording
+        order (:func:`_check_stamps`)."""
         stamps, bag = [], []
         for conn, t_ns, raw in reader.messages(connections=topic.connections):
             stamps.append(_stamp(reader.deserialize(raw, conn.msgtype)))
             bag.append(t_ns)
+        _check_stamps(self.path, topic.name, np.asarray(stamps, float))
         order = np.argsort(np.asarray(stamps), kind="stable")
         return np.asarray(stamps, float)[order], np.asarray(bag, np.int64)[order]
 
@@ -283,6 +342,7 @@ class RosbagDataset(Dataset):
                     raise CalibrationError(f"{camera}: a stereo rig calibration for a {self.sensor} run")
                 rect = Rectifier(cal)
                 self.camera = rect.camera
+                self.T_cam0_rect[:3, :3] = rect.R_rect_cam.T
                 self._rectify = (rect.maps_left, rect.maps_right)
             else:
                 self.camera = cal.camera
@@ -292,6 +352,7 @@ class RosbagDataset(Dataset):
                 f"{self.path}: the bag has no sensor_msgs/CameraInfo for {self.topics[0]}; pass --camera FILE"
             )
         cam, R, P, _model = _info_camera(cam_info["color"])
+        check_camera(cam, f"{self.path}: camera_info of {self.topics[0]}")
         self.calibration_source = f"camera_info in the bag ({self.path.name})"
         if self.sensor != "stereo":
             self.camera = cam
@@ -299,12 +360,14 @@ class RosbagDataset(Dataset):
         if "second" not in cam_info:
             raise CalibrationError(f"{self.path}: stereo needs the right camera_info in the bag, or pass --camera FILE")
         cam_r, R_r, P_r, _ = _info_camera(cam_info["second"])
+        check_camera(cam_r, f"{self.path}: right camera_info")
         baseline = -P_r[0, 3] / P_r[0, 0]
         if not baseline > 0:
             raise CalibrationError(f"{self.path}: the right camera_info's P gives baseline {baseline}; P[0,3] must be -fx*b")
         raw = cam.is_distorted or cam_r.is_distorted or not np.allclose(R, np.eye(3)) or not np.allclose(R_r, np.eye(3))
         size = (cam.width, cam.height)
         if raw:
+            self.T_cam0_rect[:3, :3] = R.T  # x_rect = R x_raw
             self._rectify = (
                 cv2.initUndistortRectifyMap(cam.K, cam.dist_coeffs, R, P[:3, :3], size, cv2.CV_16SC2),
                 cv2.initUndistortRectifyMap(cam_r.K, cam_r.dist_coeffs, R_r, P_r[:3, :3], size, cv2.CV_16SC2),
@@ -377,4 +440,4 @@ class RosbagDataset(Dataset):
             return None
         from vslam.trajectory import read_tum
 
-        return interpolate_poses(read_tum(self._gt_file), self._timestamps, max_gap=0.1)
+        return interpolate_poses(read_tum(self._gt_file, duplicates="keep_last"), self._timestamps, max_gap=0.1)

@@ -102,9 +102,12 @@ class SevenScenesDataset(Dataset):
         return T, valid
 
     def gt_pose(self, i: int) -> np.ndarray | None:
-        if self._gt_cache is not None:
+        if self._gt_cache is not None or self._gt_error is not None:
             return super().gt_pose(i)
-        return read_pose_file(self._pose_path(i))  # one small file; avoids reading all poses
+        try:
+            return read_pose_file(self._pose_path(i))  # one small file; avoids reading all poses
+        except DatasetError:
+            return None  # a bad pose file never stops the frames (the run warns about the ground truth)
 
     def _load(self, i: int) -> Frame:
         path = self.root / self._colors[i]

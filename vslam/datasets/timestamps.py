@@ -2,6 +2,7 @@
 interpolated at arbitrary times. Two lists are matched with :func:`vslam.trajectory.associate_timestamps`."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,10 @@ from vslam.errors import DatasetError
 from vslam.geometry.lie import slerp_rotation
 from vslam.textfile import open_text
 from vslam.trajectory import Trajectory
+
+
+#: a line starting ``1305031453,359684 `` (a decimal comma, then a space): not a CSV ``t,file`` line
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+\s")
 
 
 def check_timestamps(ts: np.ndarray, path: str | Path) -> None:
@@ -43,6 +48,12 @@ def read_timestamped_list(path: str | Path, what: str, min_columns: int = 2) -> 
             line = line.strip()
             if not line or line.startswith("#"):
                 continue
+            if _DECIMAL_COMMA.match(line):
+                stamp = line.split()[0]
+                raise DatasetError(
+                    f"{path}:{lineno}: timestamp {stamp!r} has a decimal comma; timestamps need a decimal point "
+                    f"({stamp.replace(',', '.')}): rewrite the file with points (a spreadsheet's locale wrote commas)"
+                )
             parts = line.replace(",", " ").split()
             if len(parts) < min_columns:
                 raise DatasetError(

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from vslam.datasets.base import (
+    CorruptFrameError,
     Dataset,
     check_timestamps,
     interpolate_poses,
@@ -238,7 +239,7 @@ class TumDataset(Dataset):
     def _gt_poses(self):
         if not self._gt_file.is_file():
             return None
-        gt = read_tum(self._gt_file)
+        gt = read_tum(self._gt_file, duplicates="keep_last")  # fr2/desk repeats some: keep the last, as evo
         return interpolate_poses(gt, self._timestamps, max_gap=self._gt_max_gap)
 
     def _load(self, i: int) -> Frame:
@@ -251,7 +252,7 @@ class TumDataset(Dataset):
         if self._right_files is not None:
             right = load_image(self.root / self._right_files[i])
             if right.shape != image.shape:
-                raise DatasetError(
+                raise CorruptFrameError(
                     f"{self.root / self._right_files[i]}: right image is {right.shape} but left is {image.shape}"
                 )
         return Frame(

@@ -207,6 +207,7 @@ def evaluate_files(
     gt_times: str | Path | None = None,
     duplicates: str = "error",
     gt_duplicates: str | None = None,
+    gt_T_right: np.ndarray | None = None,
     **overrides,
 ) -> EvalResult:
     """Read two trajectory files (format detected unless given) and :func:`evaluate_trajectories`.
@@ -215,12 +216,16 @@ def evaluate_files(
     (pose i with pose i; they must have the same length) unless ``by_index`` is given explicitly.
     ``duplicates="keep_last"`` accepts repeated timestamps (the official TUM fr2/desk ground truth
     has one), keeping the last pose of each; ``gt_duplicates`` sets it for the ground truth alone
-    (default: as ``duplicates``).
+    (default: as ``duplicates``). ``gt_T_right`` ``(4, 4)`` multiplies every ground-truth pose on the
+    right: ``T_world_body @ T_body_cam`` turns body-frame ground truth (EuRoC's
+    ``state_groundtruth_estimate0``) into the camera's.
     """
     est_format = est_format or detect_format(est_path)
     gt_format = gt_format or detect_format(gt_path)
     est = read_trajectory(est_path, est_format, est_times, duplicates)
     gt = read_trajectory(gt_path, gt_format, gt_times, gt_duplicates or duplicates)
+    if gt_T_right is not None:
+        gt = Trajectory(gt.timestamps, gt.T_world_cam @ np.asarray(gt_T_right, dtype=float))
     if "by_index" not in overrides and (config is None or not config.by_index):
         untimed = (est_format == "kitti" and est_times is None) or (gt_format == "kitti" and gt_times is None)
         if untimed:

@@ -2,12 +2,15 @@
 ATE) and the ATE along time. Uses matplotlib's Agg canvas directly (no pyplot, no display)."""
 from __future__ import annotations
 
+import io
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vslam.errors import TrajectoryError
+from vslam.outputs import atomic_write_bytes
 
 if TYPE_CHECKING:
     from vslam.eval.evaluate import EvalResult
@@ -20,6 +23,33 @@ def top_view_axes(positions: np.ndarray) -> tuple[int, int]:
     extent = np.ptp(positions, axis=0)
     a, b = sorted(np.argsort(extent)[-2:].tolist())
     return int(a), int(b)
+
+
+def _wrap_to_width(text, max_px: float, renderer) -> None:
+    """Re-wrap ``text`` (a matplotlib Text) onto as few lines as keep it at most ``max_px`` wide."""
+    full = " ".join(text.get_text().split())
+    text.set_text(full)
+    over = text.get_window_extent(renderer).width / max(max_px, 1.0)
+    width = int(len(full) / over) + 1  # characters per line, from the average character's width
+    while over > 1.0 and width > 8:
+        text.set_text(textwrap.fill(full, width, break_long_words=True))
+        over = text.get_window_extent(renderer).width / max(max_px, 1.0)
+        width -= 1
+
+
+def fit_titles(fig, margin_px: float = 6.0) -> None:
+    """Lay ``fig`` out tightly with every title inside it: each axes title wrapped to its axes'
+    width, the figure's title (``suptitle``) to the figure's, then ``tight_layout`` (twice: the
+    wrapped titles are taller, which narrows the axes)."""
+    fig.tight_layout()
+    for _ in range(2):
+        renderer = fig.canvas.get_renderer()
+        for ax in fig.axes:
+            if ax.get_title():
+                _wrap_to_width(ax.title, ax.get_window_extent(renderer).width, renderer)
+        if fig._suptitle is not None and fig._suptitle.get_text():
+            _wrap_to_width(fig._suptitle, fig.bbox.width - 2 * margin_px, renderer)
+        fig.tight_layout()
 
 
 def plot_evaluation(result: "EvalResult", path: str | Path, title: str | None = None, dpi: int = 110) -> Path:
@@ -35,6 +65,9 @@ def plot_evaluation(result: "EvalResult", path: str | Path, title: str | None = 
     path = Path(path)
     if not path.parent.is_dir():
         raise TrajectoryError(f"{path}: cannot write the plot, folder {path.parent} does not exist")
+    fmt = path.suffix.lower().lstrip(".") or "png"
+    if fmt not in FigureCanvasAgg.get_supported_filetypes():
+        raise TrajectoryError(f"{path}: cannot write a plot as .{fmt}; use .png, .pdf or .svg")
     gt = result.gt_matched.positions
     est = result.est_aligned.positions
     err = result.ate_errors
@@ -75,6 +108,8 @@ def plot_evaluation(result: "EvalResult", path: str | Path, title: str | None = 
     ax_err.grid(alpha=0.3)
 
     fig.suptitle(title or f"{Path(result.names[0]).name} vs {Path(result.names[1]).name}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    fit_titles(fig)  # long titles (a Sim(3) note, long file names) wrapped, never cut off
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format=fmt)
+    atomic_write_bytes(path, buf.getvalue())  # a full disk leaves the previous plot whole
     return path

@@ -16,7 +16,7 @@ class TrackOutput:
     """What :meth:`vslam.frontend.tracker.Tracker.track` reports for one frame."""
 
     T_world_cam: np.ndarray | None
-    state: str  # "ok" | "lost" | "initializing"
+    state: str  # "ok" | "lost" | "initializing" | "imu" (posed by the IMU alone)
     is_keyframe: bool
     n_inliers: int
     ref_keyframe: int | None = None

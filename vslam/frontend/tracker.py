@@ -86,6 +86,7 @@ class Tracker:
         self.n_relocalized = 0
         self._relocalizer = relocalizer
         self._place_left = 0  # frames left to place in a loaded map (status "placing")
+        self.placed: tuple[int, int, int] | None = None  # first frame placed in a loaded map: (frame, keyframe, inliers)
         binary = feature_cfg.detector in BINARY_DETECTORS
         self.observer = Observer(cfg, feature_cfg, camera, sensor, map_)
         self.keyframes = KeyframeMaker(cfg, feature_cfg, camera, sensor, map_, self.observer, on_keyframe)
@@ -97,6 +98,10 @@ class Tracker:
         # prepare() results by frame index: (frame, gray, Features or None); filled ahead of track()
         self._prepared: dict[int, tuple[Frame, np.ndarray, Any]] = {}
         self._preparer = self.preparer()
+        # inertial sensors, once the IMU is initialized: the pose prediction (System.set_imu_predictor)
+        self.imu_predictor: Any = None
+        self._imu_pred: np.ndarray | None = None  # this frame's IMU prediction (None: none)
+        self.n_imu_only = 0  # frames posed by the IMU alone (vision failed; _imu_only)
 
     # ================================================================== public surface
     def set_relocalizer(self, relocalizer: Callable[..., Any] | None) -> None:
@@ -107,6 +112,28 @@ class Tracker:
         """The map moved under the tracker (local BA or a loop correction moved the newest keyframe
         by ``D = T_world_kf_after @ inv(T_world_kf_before)``): move the last poses with it."""
         self.state.apply_correction(T_world_new_from_old)
+        if self.imu_predictor is not None:
+            self.imu_predictor.apply_correction(T_world_new_from_old)
+
+    def set_imu_predictor(self, predictor: Any) -> None:
+        """Predict each next frame with ``predictor.predict(timestamp)`` (an
+        :class:`~vslam.frontend.imu_prediction.ImuPredictor`) instead of the constant-velocity model,
+        and feed it each tracked pose (``predictor.update``); the motion model stays the fallback."""
+        self.imu_predictor = predictor
+
+    def move_world(self, S: np.ndarray) -> None:
+        """The whole map moved by the similarity ``S`` (the IMU initialization's gravity alignment and
+        scale): move the last poses, and scale the velocity and speed, with it."""
+        st = self.state
+        s = similarity_scale(S)
+        mm = st.motion_model
+        if mm.T_world_last is not None:
+            mm.T_world_last = move_pose(S, mm.T_world_last)
+            mm.T_last_cur = mm.T_last_cur.copy()
+            mm.T_last_cur[:3, 3] *= s
+        if st.T_world_last_good is not None:
+            st.T_world_last_good = move_pose(S, st.T_world_last_good)
+        st.speed_per_frame *= s
 
     def start_in_map(self, max_frames_to_place: int) -> None:
         """The map holds keyframes of an earlier session: place the next frames in it by global
@@ -127,15 +154,7 @@ class Tracker:
             return
         st.segment = new
         st.local_ids = None
-        s = similarity_scale(S_new_old)
-        mm = st.motion_model
-        if mm.T_world_last is not None:
-            mm.T_world_last = move_pose(S_new_old, mm.T_world_last)
-            mm.T_last_cur = mm.T_last_cur.copy()
-            mm.T_last_cur[:3, 3] *= s
-        if st.T_world_last_good is not None:
-            st.T_world_last_good = move_pose(S_new_old, st.T_world_last_good)
-        st.speed_per_frame *= s
+        self.move_world(S_new_old)
 
     @property
     def motion_model(self) -> MotionModel:
@@ -198,7 +217,7 @@ class Tracker:
         else:
             gray, self.observer.prepared_feats = frame.gray, None
         t0 = time.perf_counter()
-        T_world_pred = st.motion_model.predict() if st.status not in ("initializing", "placing") else None
+        T_world_pred = self._predict(frame) if st.status not in ("initializing", "placing") else None
         obs, _ = self.observer.observe(frame, gray, T_world_pred, st.prev, st.prev_gray, st.motion_model.valid)
         self.timers["features"] += time.perf_counter() - t0
         if st.status == "initializing":
@@ -209,7 +228,19 @@ class Tracker:
             out = self._track_initialized(frame, gray, obs, T_world_pred)
         if self.sensor == "rgbd":
             self.dense.end_frame(frame, gray, out.T_world_cam, out.is_keyframe, out.ref_keyframe)
+        if self.imu_predictor is not None and out.state == "ok" and out.T_world_cam is not None:
+            self.imu_predictor.update(frame.timestamp, out.T_world_cam)
         return out
+
+    def _predict(self, frame: Frame) -> np.ndarray | None:
+        """The pose prediction: the IMU's once initialized (when it covers the frame), else the
+        constant-velocity model's."""
+        self._imu_pred = None
+        if self.imu_predictor is not None:
+            T_world_pred = self._imu_pred = self.imu_predictor.predict(frame.timestamp)
+            if T_world_pred is not None:
+                return T_world_pred
+        return self.state.motion_model.predict()
 
     # ================================================================== tracking
     def _local_point_ids(self) -> np.ndarray:
@@ -283,6 +314,8 @@ class Tracker:
         if T is not None:
             st.segment = self.map.keyframes[st.ref_kf].segment
             log.info("frame %d placed in the loaded map (segment %d) with %d inliers", frame.index, st.segment, n)
+            if self.placed is None:
+                self.placed = (int(frame.index), int(st.ref_kf), int(n))
             return self._tracked(frame, gray, obs, T, n)
         self._place_left -= 1
         st.set_prev(obs, gray)
@@ -328,6 +361,9 @@ class Tracker:
             bridged = self._bridge_with_depth(frame, gray, obs)
             if bridged is not None:
                 return bridged
+        imu_only = self._imu_only(frame, gray, obs)
+        if imu_only is not None:
+            return imu_only
         st.n_lost_run += 1
         st.status = "lost"
         log.info("frame %d lost (%d in a row)", frame.index, st.n_lost_run)
@@ -346,6 +382,24 @@ class Tracker:
         if mm.T_world_last is not None:
             mm.T_world_last = mm.T_world_last @ mm.T_last_cur
         return TrackOutput(None, "lost", False, 0)
+
+    def _imu_only(self, frame: Frame, gray: np.ndarray, obs: Observation) -> TrackOutput | None:
+        """Inertial sensors, IMU initialized, vision failed: the IMU prediction is the frame's pose
+        (state ``imu``) while the last visually tracked frame is at most ``tracking.imu_only_max_s``
+        seconds back (ORB-SLAM3's RECENTLY_LOST). The IMU state stays at that frame, so each
+        prediction integrates from it; the tracker stays *lost* in the same map segment (no lost-run
+        count, no new segment), and the next frames are tracked against the local map from the
+        prediction (wider search radius), or relocalized."""
+        p, T_pred, st = self.imu_predictor, self._imu_pred, self.state
+        if p is None or T_pred is None or not p.active or frame.timestamp - p.t > self.cfg.tracking.imu_only_max_s:
+            return None
+        st.status = "lost"
+        st.set_prev(obs, gray)
+        st.motion_model.T_world_last = T_pred.copy()
+        self.n_imu_only += 1
+        log.info("frame %d: no visual pose, IMU-only (%.2f s since the last tracked frame)", frame.index,
+                 frame.timestamp - p.t)
+        return TrackOutput(T_pred, "imu", False, 0, st.ref_kf)
 
     def _bridge_with_depth(self, frame: Frame, gray: np.ndarray, obs: Observation) -> TrackOutput | None:
         """RGB-D, no pose from features: dense alignment to the last tracked frame
@@ -368,6 +422,8 @@ class Tracker:
     def _reinitialize(self) -> None:
         st = self.state
         log.warning("tracking lost for %d frames: re-initializing a new map segment", st.n_lost_run)
+        if self.imu_predictor is not None:  # the new segment has its own world (and scale)
+            self.imu_predictor.stop("a new map segment starts")
         st.status = "initializing"
         self.bootstrap.reset()
         st.ref_kf = None

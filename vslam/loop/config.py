@@ -12,11 +12,11 @@ from vslam.param import param, section
 class VocabularyConfig:
     """How a bag-of-binary-words vocabulary is trained (Galvez-Lopez & Tardos 2012, sec. IV)."""
 
-    k: int = param(10, "branching factor of the vocabulary tree")
-    levels: int = param(4, "depth L of the tree; at most k**L words")
-    max_iterations: int = param(10, "k-majority iterations per node (stops earlier when assignments settle)")
-    seed: int = param(0, "seed of the k-means++ seeding (reproducible training)")
-    direct_index_level: int = param(2, "tree level (1 = the root's children) whose nodes form the direct index used to match features")
+    k: int = param(10, "branching factor of the vocabulary tree", bounds="[2, 256]")
+    levels: int = param(4, "depth L of the tree; at most k**L words", bounds="[1, 10]")
+    max_iterations: int = param(10, "k-majority iterations per node (stops earlier when assignments settle)", bounds="[1, 10000]")
+    seed: int = param(0, "seed of the k-means++ seeding (reproducible training)", bounds="[0, 4294967295]")
+    direct_index_level: int = param(2, "tree level (1 = the root's children) whose nodes form the direct index used to match features", bounds="[0, 10]")
 
     def __post_init__(self) -> None:
         if self.k < 2 or self.k > 20:
@@ -35,12 +35,12 @@ class VocabularyConfig:
 class LoopDetectorConfig:
     """Loop candidate detection with temporal consistency (ORB-SLAM's consistency groups)."""
 
-    min_score: float = param(0.5, "minimum normalized score of a candidate (see database.normalize_with)")
-    max_candidates: int = param(10, "database results considered per query")
-    group_radius: int = param(20, "with no covisibility callback, keyframes whose ids differ by at most this form a group")
-    exclude_radius: int = param(30, "with no covisible set, keyframes with ids within this of the query are excluded")
-    min_consistent: int = param(3, "a group must be found in this many consecutive queries to be accepted")
-    accumulated_ratio: float = param(0.75, "groups below this fraction of the best group's accumulated score are dropped (ORB-SLAM: 0.75)")
+    min_score: float = param(0.5, "minimum normalized score of a candidate (see database.normalize_with)", bounds="[0, 1000]")
+    max_candidates: int = param(10, "database results considered per query", bounds="[1, 10000]")
+    group_radius: int = param(20, "with no covisibility callback, keyframes whose ids differ by at most this form a group", bounds="[0, 1000000]")
+    exclude_radius: int = param(30, "with no covisible set, keyframes with ids within this of the query are excluded", bounds="[0, 1000000]")
+    min_consistent: int = param(3, "a group must be found in this many consecutive queries to be accepted", bounds="[0, 1000]")
+    accumulated_ratio: float = param(0.75, "groups below this fraction of the best group's accumulated score are dropped (ORB-SLAM: 0.75)", bounds="[0, 1]")
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1:
@@ -57,9 +57,9 @@ class LoopDetectorConfig:
 class LoopFuseConfig:
     """Fusing a verified loop's candidate points into the query's neighbours (ORB-SLAM's SearchAndFuse)."""
 
-    radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels")
-    max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching")
-    ratio: float = param(0.9, "ratio test of that fusion's guided matching")
+    radius_px: float = param(4.0, "search radius when fusing the candidate's points into the query's neighbours, pixels", bounds="(0, 10000]")
+    max_descriptor_distance: float = param(50.0, "Hamming bound of that fusion's guided matching", bounds="[0, 1000000]")
+    ratio: float = param(0.9, "ratio test of that fusion's guided matching", bounds="(0, 1]")
 
     def __post_init__(self) -> None:
         if not self.radius_px > 0:
@@ -74,12 +74,12 @@ class ConfirmConfig:
     verified against the same candidate group with as many inliers, agree on the correction within
     ``max_m`` / ``max_deg``."""
 
-    min_keyframes: int = param(1, "connected keyframes that must confirm a weak RGB-D loop (0: rule off)")
-    min_inliers: int = param(15, "inliers a weak RGB-D loop and each confirming keyframe need")
-    max_m: float = param(0.2, "confirming corrections agree within this translation, metres")
-    max_deg: float = param(4.0, "confirming corrections agree within this rotation, degrees")
-    neighbours: int = param(3, "the query's strongest connected keyframes tried for that confirmation")
-    min_map_inliers: int = param(6, "a confirmed loop also needs this many map-point inliers after refinement (0: RANSAC-only ok)")
+    min_keyframes: int = param(1, "connected keyframes that must confirm a weak RGB-D loop (0: rule off)", bounds="[0, 1000]")
+    min_inliers: int = param(15, "inliers a weak RGB-D loop and each confirming keyframe need", bounds="[0, 1000000]")
+    max_m: float = param(0.2, "confirming corrections agree within this translation, metres", bounds="[0, 1000000]")
+    max_deg: float = param(4.0, "confirming corrections agree within this rotation, degrees", bounds="[0, 180]")
+    neighbours: int = param(3, "the query's strongest connected keyframes tried for that confirmation", bounds="[0, 1000]")
+    min_map_inliers: int = param(6, "a confirmed loop also needs this many map-point inliers after refinement (0: RANSAC-only ok)", bounds="[0, 1000000]")
 
     def __post_init__(self) -> None:
         if self.min_keyframes < 0 or self.neighbours < 0 or self.min_map_inliers < 0:
@@ -94,32 +94,32 @@ class ClosingConfig:
     """Geometric verification and correction of a loop candidate (ORB-SLAM, Mur-Artal et al. 2015,
     sec. VII-B/C/D; ORB-SLAM2 sec. VI-D)."""
 
-    candidate_neighbours: int = param(10, "the candidate's strongest covisible keyframes whose points are matched with its own")
-    match_ratio: float = param(0.8, "Lowe ratio of the brute-force descriptor matching (query keypoints vs points)")
-    max_descriptor_distance: float = param(64.0, "Hamming bits; worse descriptor matches are dropped")
-    min_matches: int = param(20, "descriptor matches needed before RANSAC")
-    align_threshold_m: float = param(0.05, "RGB-D/stereo 3D-3D RANSAC inlier distance, metres (times depth^2 beyond 1 m)")
-    align_threshold_rel: float = param(0.09, "monocular Sim(3) RANSAC inlier distance, fraction of the matched map points' median distance from their median point")
-    search_radius_px: float = param(8.0, "guided matching radius at the estimated pose, pixels")
-    min_inliers: int = param(40, "inliers after guided matching and refinement needed to accept a loop (RGB-D / stereo)")
-    min_inliers_mono: int = param(40, "the same for monocular")
-    merge_scale_min_pairs: int = param(20, "monocular segment join: verified pairs with a query-side point needed to take the join's scale as their median depth ratio (else the RANSAC scale)")
-    min_inlier_ratio: float = param(0.3, "accepted loops also need this fraction of the guided matches as inliers")
-    max_correction_deg: float = param(45.0, "a loop correcting the query pose by more than this rotation is rejected, degrees")
-    max_correction_m: float = param(2.0, "the same for translation, metres (ignored for monocular: unknown scale)")
-    covisibility_edge_weight: int = param(100, "covisibility links at least this strong enter the essential graph")
+    candidate_neighbours: int = param(10, "the candidate's strongest covisible keyframes whose points are matched with its own", bounds="[0, 10000]")
+    match_ratio: float = param(0.8, "Lowe ratio of the brute-force descriptor matching (query keypoints vs points)", bounds="(0, 1]")
+    max_descriptor_distance: float = param(64.0, "Hamming bits; worse descriptor matches are dropped", bounds="[0, 1000000]")
+    min_matches: int = param(20, "descriptor matches needed before RANSAC", bounds="[3, 1000000]")
+    align_threshold_m: float = param(0.05, "RGB-D/stereo 3D-3D RANSAC inlier distance, metres (times depth^2 beyond 1 m)", bounds="(0, 1000000]")
+    align_threshold_rel: float = param(0.09, "monocular Sim(3) RANSAC inlier distance, fraction of the matched map points' median distance from their median point", bounds="(0, 1000]")
+    search_radius_px: float = param(8.0, "guided matching radius at the estimated pose, pixels", bounds="(0, 10000]")
+    min_inliers: int = param(40, "inliers after guided matching and refinement needed to accept a loop (RGB-D / stereo)", bounds="[3, 1000000]")
+    min_inliers_mono: int = param(40, "the same for monocular", bounds="[3, 1000000]")
+    merge_scale_min_pairs: int = param(20, "monocular segment join: verified pairs with a query-side point needed to take the join's scale as their median depth ratio (else the RANSAC scale)", bounds="[1, 1000000]")
+    min_inlier_ratio: float = param(0.3, "accepted loops also need this fraction of the guided matches as inliers", bounds="[0, 1]")
+    max_correction_deg: float = param(45.0, "a loop correcting the query pose by more than this rotation is rejected, degrees", bounds="[0, 180]")
+    max_correction_m: float = param(2.0, "the same for translation, metres (ignored for monocular: unknown scale)", bounds="[0, 1000000]")
+    covisibility_edge_weight: int = param(100, "covisibility links at least this strong enter the essential graph", bounds="[0, 1000000]")
     # the verified loop pose is far more certain than one odometry step (it is measured against the old map)
-    loop_edge_information: float = param(10.0, "information multiplier of loop edges relative to odometry edges")
-    min_keyframes_between: int = param(10, "no loop is detected within this many keyframes after the last one")
+    loop_edge_information: float = param(10.0, "information multiplier of loop edges relative to odometry edges", bounds="(0, 1e12]")
+    min_keyframes_between: int = param(10, "no loop is detected within this many keyframes after the last one", bounds="[0, 1000000]")
     # Weaker covisibility links (old points re-observed on a revisit) are loop candidates.
-    connected_min_weight: int = param(15, "keyframes sharing this many points with the query are connected: excluded and moved with it (ORB-SLAM: 15)")
-    max_tries: int = param(3, "keyframes of a consistent candidate group verified at most (best match first)")
-    guided_max_descriptor_distance: float = param(64.0, "Hamming bound of the verification's guided matching")
-    guided_ratio: float = param(0.9, "ratio test of the verification's guided matching")
-    min_search_radius_px: float = param(3.0, "the second guided matching uses max(search_radius_px / 2, this), pixels")
+    connected_min_weight: int = param(15, "keyframes sharing this many points with the query are connected: excluded and moved with it (ORB-SLAM: 15)", bounds="[0, 1000000]")
+    max_tries: int = param(3, "keyframes of a consistent candidate group verified at most (best match first)", bounds="[1, 1000]")
+    guided_max_descriptor_distance: float = param(64.0, "Hamming bound of the verification's guided matching", bounds="[0, 1000000]")
+    guided_ratio: float = param(0.9, "ratio test of the verification's guided matching", bounds="(0, 1]")
+    min_search_radius_px: float = param(3.0, "the second guided matching uses max(search_radius_px / 2, this), pixels", bounds="[0, 10000]")
     global_ba: bool = param(True, "run a global bundle adjustment after the pose-graph correction")
     match_keypoints_with_depth: bool = param(True, "RGB-D/stereo: the candidate group's keypoints with depth but no map point join the RANSAC")
-    depth_keypoint_neighbours: int = param(10, "strongest covisible keyframes of the candidate whose depth keypoints join (one matching each)")
+    depth_keypoint_neighbours: int = param(10, "strongest covisible keyframes of the candidate whose depth keypoints join (one matching each)", bounds="[0, 10000]")
     refine_ransac_pose: bool = param(True, "refine the 3D-3D RANSAC pose on its inliers' reprojection errors before guided matching")
     # With ~10 loop observations against thousands along the trajectory the global BA re-opens the loop: TUM
     # fr3/cabinet (loop 57 -> 2, 10 inliers), error of the last keyframe relative to keyframe 2 (GT) 15 mm after
@@ -147,17 +147,17 @@ class RelocalizationConfig:
     """Relocalization of a frame whose tracking failed (ORB-SLAM sec. V-C): BoW candidates, PnP
     RANSAC, guided matching and pose refinement."""
 
-    max_candidates: int = param(5, "keyframes tried (best raw BoW score first)")
-    match_ratio: float = param(0.8, "Lowe ratio of the frame-to-candidate descriptor matching")
-    max_descriptor_distance: float = param(64.0, "Hamming bound of the frame-to-candidate descriptor matching")
-    min_matches: int = param(15, "matches needed to try PnP")
-    candidate_covisible: int = param(10, "strongest covisible keyframes of a candidate whose points join its matching")
-    reproj_px: float = param(4.0, "PnP RANSAC inlier threshold, pixels")
-    search_radius_px: float = param(8.0, "guided matching radius at the PnP pose, pixels")
-    min_inliers: int = param(40, "inliers after refinement needed to accept the pose (ORB-SLAM: 50)")
-    recover_min_matches: int = param(10, "tracker fallback against its recent keyframes: descriptor matches to try RANSAC")
-    recover_min_inliers: int = param(20, "tracker fallback: map-point inliers after guided matching to accept")
-    recover_covisible: int = param(5, "tracker fallback: covisible keyframes of each recent keyframe whose points join")
+    max_candidates: int = param(5, "keyframes tried (best raw BoW score first)", bounds="[1, 10000]")
+    match_ratio: float = param(0.8, "Lowe ratio of the frame-to-candidate descriptor matching", bounds="(0, 1]")
+    max_descriptor_distance: float = param(64.0, "Hamming bound of the frame-to-candidate descriptor matching", bounds="[0, 1000000]")
+    min_matches: int = param(15, "matches needed to try PnP", bounds="[3, 1000000]")
+    candidate_covisible: int = param(10, "strongest covisible keyframes of a candidate whose points join its matching", bounds="[0, 10000]")
+    reproj_px: float = param(4.0, "PnP RANSAC inlier threshold, pixels", bounds="(0, 10000]")
+    search_radius_px: float = param(8.0, "guided matching radius at the PnP pose, pixels", bounds="(0, 10000]")
+    min_inliers: int = param(40, "inliers after refinement needed to accept the pose (ORB-SLAM: 50)", bounds="[3, 1000000]")
+    recover_min_matches: int = param(10, "tracker fallback against its recent keyframes: descriptor matches to try RANSAC", bounds="[3, 1000000]")
+    recover_min_inliers: int = param(20, "tracker fallback: map-point inliers after guided matching to accept", bounds="[3, 1000000]")
+    recover_covisible: int = param(5, "tracker fallback: covisible keyframes of each recent keyframe whose points join", bounds="[0, 10000]")
 
     def __post_init__(self) -> None:
         if self.max_candidates < 1 or self.min_inliers < 6 or self.min_matches < 6:

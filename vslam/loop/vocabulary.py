@@ -29,6 +29,7 @@ Example:
 from __future__ import annotations
 
 import functools
+import io
 import json
 import zipfile
 import logging
@@ -42,6 +43,7 @@ from vslam.errors import ConfigError, MapFormatError, VslamError
 from vslam.loop.config import VocabularyConfig
 from vslam.loop.vocabulary_kernels import descend_numpy, descend_words
 from vslam.map.database import BowVector  # the vector type the keyframe database indexes
+from vslam.outputs import atomic_write_bytes, atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -279,10 +281,10 @@ class Vocabulary:
                   "descriptor_size": self.descriptor_size, "n_nodes": self.n_nodes, "n_words": self.n_words,
                   "direct_index_level": self.direct_index_level, "scoring": "L1", "weighting": "TF-IDF"}
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as fh:
-            np.savez_compressed(fh, header=np.array(json.dumps(header)), descriptors=self.descriptors,
-                                parents=self.parents, weights=self.weights)
-        return path
+        buf = io.BytesIO()
+        np.savez_compressed(buf, header=np.array(json.dumps(header)), descriptors=self.descriptors,
+                            parents=self.parents, weights=self.weights)
+        return atomic_write_bytes(path, buf.getvalue())  # a full disk leaves an existing file whole
 
     @classmethod
     def load(cls, path: str | Path) -> Vocabulary:
@@ -321,8 +323,7 @@ class Vocabulary:
         for i in range(1, self.n_nodes):
             desc = " ".join(map(str, self.descriptors[i].tolist()))
             lines.append(f"{self.parents[i]} {int(is_leaf[i])} {desc} {float(self.weights[i])!r}")
-        path.write_text("\n".join(lines) + "\n")
-        return path
+        return atomic_write_text(path, "\n".join(lines) + "\n")
 
     @classmethod
     def load_dbow2_text(cls, path: str | Path, descriptor_size: int = 32) -> Vocabulary:

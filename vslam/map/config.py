@@ -12,12 +12,12 @@ from vslam.param import param
 class PoseGraphConfig:
     """SE(3) / Sim(3) pose-graph optimization (essential graph, ORB-SLAM2 Sec. VI-D)."""
 
-    max_iterations: int = param(100, "LM iterations")
-    relative_tolerance: float = param(1e-8, "LM relative error tolerance")
-    default_sigma_rotation: float = param(0.01, "radians; edge rotation std when an edge gives no information")
-    default_sigma_translation: float = param(0.05, "metres; edge translation std when an edge gives no information")
-    default_sigma_scale: float = param(0.01, "log-scale std of Sim(3) edges without information")
-    prior_sigma: float = param(1e-6, "std of the priors that hold fixed nodes (tiny = fixed)")
+    max_iterations: int = param(100, "LM iterations", bounds="[1, 100000]")
+    relative_tolerance: float = param(1e-8, "LM relative error tolerance", bounds="[0, 1]")
+    default_sigma_rotation: float = param(0.01, "radians; edge rotation std when an edge gives no information", bounds="(0, 1000]")
+    default_sigma_translation: float = param(0.05, "metres; edge translation std when an edge gives no information", bounds="(0, 1000000]")
+    default_sigma_scale: float = param(0.01, "log-scale std of Sim(3) edges without information", bounds="(0, 1000]")
+    prior_sigma: float = param(1e-6, "std of the priors that hold fixed nodes (tiny = fixed)", bounds="(0, 1000]")
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -35,9 +35,9 @@ class DatabaseConfig:
     # With a small vocabulary (the embedded default has 10^4 words) two unrelated images share many words and
     # score ~0.13; without this the ratio barely separates loops from chance. False: plain DBoW2/ORB-SLAM.
     subtract_baseline: bool = param(True, "subtract the query's chance-level score (median over non-excluded keyframes) before dividing")
-    min_baseline_keyframes: int = param(8, "with subtract_baseline, normalize only once this many keyframes give a baseline")
-    min_common_words_ratio: float = param(0.0, "keep keyframes sharing at least this fraction of the most words any keyframe shares (ORB-SLAM: 0.8)")
-    merge_every: int = param(32, "pending keyframes merge into the compressed inverted index once there are this many (or 1/16 of the merged)")
+    min_baseline_keyframes: int = param(8, "with subtract_baseline, normalize only once this many keyframes give a baseline", bounds="[0, 1000000]")
+    min_common_words_ratio: float = param(0.0, "keep keyframes sharing at least this fraction of the most words any keyframe shares (ORB-SLAM: 0.8)", bounds="[0, 1]")
+    merge_every: int = param(32, "pending keyframes merge into the compressed inverted index once there are this many (or 1/16 of the merged)", bounds="[1, 1000000]")
 
     def __post_init__(self) -> None:
         if self.normalize_with not in ("max", "min", "none"):

@@ -65,6 +65,10 @@ class BowVector:
         dense[self.words] = self.values
         return dense
 
+#: the largest vocabulary a saved database may announce (k=10, L=7 has 10^7 words)
+MAX_WORDS = 1 << 24
+
+
 class KeyframeDatabase:
     """BoW vectors of keyframes with an inverted index.
 
@@ -300,6 +304,8 @@ class KeyframeDatabase:
                 ids, indptr, words, values = data["kf_ids"], data["indptr"], data["words"], data["values"]
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             raise MapFormatError(f"keyframe database {path} is unreadable or truncated: {exc}") from exc
+        if not isinstance(header, dict):
+            raise MapFormatError(f"keyframe database {path}: the header is not a JSON object (corrupted file)")
         if header.get("format") != FORMAT_NAME or header.get("version") != FORMAT_VERSION:
             raise MapFormatError(
                 f"keyframe database {path}: format {header.get('format')!r} version {header.get('version')} "
@@ -307,7 +313,16 @@ class KeyframeDatabase:
             )
         if indptr.size != ids.size + 1 or indptr[-1] != words.size or words.size != values.size:
             raise MapFormatError(f"keyframe database {path}: arrays are inconsistent (truncated file?)")
-        db = cls(int(header["n_words"]), config)
+        n_words = header.get("n_words")
+        # a vocabulary has at most a few million words (ORBvoc: 10^6); a header announcing more is corrupt
+        if not isinstance(n_words, int) or isinstance(n_words, bool) or not 1 <= n_words <= MAX_WORDS:
+            raise MapFormatError(f"keyframe database {path}: n_words {n_words!r} is not a vocabulary size "
+                                 f"(1 .. {MAX_WORDS})")
+        if words.size and (words.min() < 0 or words.max() >= n_words) or np.unique(ids).size != ids.size \
+                or np.any(np.diff(indptr) < 0):
+            raise MapFormatError(f"keyframe database {path}: word ids, keyframe ids or offsets are out of range "
+                                 "(corrupted file)")
+        db = cls(n_words, config)
         for i, kf_id in enumerate(ids.tolist()):
             lo, hi = indptr[i], indptr[i + 1]
             db._bows[int(kf_id)] = BowVector(words[lo:hi].copy(), values[lo:hi].copy())

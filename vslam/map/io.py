@@ -96,6 +96,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: map.json holds counts, the camera, metadata and the segment table: kilobytes, never this much
+MAX_MANIFEST_BYTES = 64 << 20
+
 
 # ============================================================================ save
 def save_map(
@@ -244,6 +247,10 @@ def load_map(
             raise
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise MapFormatError(f"{root / db_name} is unreadable (truncated or corrupted): {exc}") from exc
+        stray = [i for i in database.keyframe_ids if i not in slam_map.keyframes]
+        if stray:
+            raise MapFormatError(f"{root / db_name}: {len(stray)} keyframe ids (e.g. {stray[0]}) are not keyframes "
+                                 "of the map (corrupted or from another map)")
     camera = _camera_from_json(root, manifest.get("camera"))
     metadata = manifest.get("metadata") or {}
     log.info("map loaded from %s: %d keyframes, %d points in %.2f s", root, len(keyframes), len(points),
@@ -270,9 +277,14 @@ def _resolve(directory: Path) -> Path:
 def _read_manifest(root: Path) -> dict:
     path = root / MANIFEST_FILE
     try:
+        if path.stat().st_size > MAX_MANIFEST_BYTES:
+            raise MapFormatError(f"{path}: {path.stat().st_size} bytes is not a map manifest (at most "
+                                 f"{MAX_MANIFEST_BYTES}; corrupted or not a vslam map)")
         manifest = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MapFormatError(f"{path} is unreadable or not valid JSON (truncated?): {exc}") from exc
+    except RecursionError:  # JSON nested thousands of levels deep
+        raise MapFormatError(f"{path}: nested too deeply to be a map manifest (corrupted)") from None
     if not isinstance(manifest, dict):
         raise MapFormatError(f"{path}: expected a JSON object")
     if manifest.get("format") != FORMAT_NAME:
@@ -287,14 +299,36 @@ def _read_manifest(root: Path) -> dict:
     return manifest
 
 
-def load_run_map(run_dir: str | Path, what: str, purpose: str):
-    """:func:`load_map` of a run folder a user named: one-line :class:`MapFormatError` when the
-    folder is missing or its map has no keyframes (``"{run_dir}: {what} has no keyframes; nothing
-    to {purpose}"``). Returns ``(map, database, camera, metadata)``."""
+def load_run_map(run_dir: str | Path, what: str, purpose: str, database_config: DatabaseConfig | None = None):
+    """:func:`load_map` of a run folder a user named (``DIR`` or ``DIR/map``): one-line
+    :class:`MapFormatError` when the folder is missing or its map has no keyframes (``"{run_dir}:
+    {what} has no keyframes; nothing to {purpose}"``). Returns ``(map, database, camera, metadata)``.
+
+    While another command writes the folder (``vslam run --map M -o M``) this waits for it a bounded
+    time, then says which command it is (:func:`vslam.outputs.reading_run_dir`, :class:`OutputError`);
+    when the last run into it did not complete (stopped), the last complete map, kept in
+    ``DIR/.previous-run/``, is read, with a warning that says so."""
+    from vslam.outputs import LOCK_NAME, PREVIOUS_NAME, last_complete_run, reading_run_dir, refuse_if_written
+
     run_dir = Path(run_dir)
-    if not run_dir.exists():
+    # DIR/map names the map of the run folder DIR (which holds the lock and .previous-run/)
+    inner = run_dir.name == MAP_DIRNAME and not (run_dir / MAP_DIRNAME).is_dir() and not any(
+        (run_dir / n).exists() for n in (LOCK_NAME, PREVIOUS_NAME))
+    folder = run_dir.parent if inner else run_dir
+    if not run_dir.exists() and not (inner and (folder / PREVIOUS_NAME / MAP_DIRNAME).is_dir()):
         raise MapFormatError(f"{run_dir}: no such map folder (give the --output folder of a `vslam run`)")
-    slam_map, database, camera, metadata = load_map(run_dir)
+    try:
+        with reading_run_dir(folder, what):
+            source, why = last_complete_run(folder)
+            if why is not None and (source / MAP_DIRNAME / MANIFEST_FILE).is_file():
+                log.warning("%s: the last run into this folder did not complete (%s); %s is read from the last "
+                            "complete run, kept in %s", folder, why, what, source)
+            else:
+                source = run_dir
+            slam_map, database, camera, metadata = load_map(source, database_config=database_config)
+    except MapFormatError:
+        refuse_if_written(folder, what)  # a run started writing it meanwhile: say that, not "missing"
+        raise
     if not slam_map.keyframes:
         raise MapFormatError(f"{run_dir}: {what} has no keyframes; nothing to {purpose}")
     return slam_map, database, camera, metadata

@@ -177,15 +177,28 @@ def unpack_covisibility(root: Path, manifest: dict, arrays: dict) -> dict[int, d
     return graph
 
 
+#: |coordinate| of a map point or keyframe centre beyond this (metres) is no map (as vslam.trajectory.MAX_COORDINATE)
+MAX_COORDINATE = 1e12
+
+
 def check_references(root: Path, slam_map: Map) -> None:
-    """Every covisibility node is a keyframe and every keyframe pose is finite and rigid."""
+    """Every covisibility node is a keyframe, every keyframe pose is finite and rigid, and every
+    live map point's position is finite and within :data:`MAX_COORDINATE`."""
+    n = len(slam_map.points)
+    alive = np.asarray(slam_map.points.alive[:n], bool)
+    position = np.asarray(slam_map.points.position[:n], float)
+    bad = alive & ~np.all(np.isfinite(position) & (np.abs(position) <= MAX_COORDINATE), axis=1)
+    if bad.any():
+        raise MapFormatError(f"{root / POINTS_FILE}: {int(bad.sum())} map points (e.g. point {int(np.argmax(bad))}) "
+                             f"have positions that are not finite (or beyond {MAX_COORDINATE:.0e} m); the map is corrupted")
     missing = [k for k in slam_map.covisibility if k not in slam_map.keyframes]
     if missing:
         raise MapFormatError(f"{root / COVISIBILITY_FILE}: graph node {missing[0]} is not a keyframe of "
                              f"{KEYFRAMES_FILE}; the map is corrupted")
     for kf in slam_map.keyframes.values():
         T = np.asarray(kf.T_world_cam, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]) \
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or np.abs(T).max() > MAX_COORDINATE \
+                or not np.allclose(T[3], [0, 0, 0, 1]) \
                 or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-3):
             raise MapFormatError(f"{root / KEYFRAMES_FILE}: keyframe {kf.id} pose is not a finite rigid "
                                  "transform; the map is corrupted")

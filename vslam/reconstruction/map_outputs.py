@@ -54,10 +54,11 @@ def write_map_outputs(out_dir: str | Path, slam_map: Map, camera: Any = None, da
     X = store.position[:n][alive]
     colors = store.color[:n][alive]
     nodes, edges = topology_graph(slam_map, loops_kf)
+    unit = "arbitrary scale" if (metadata or {}).get("sensor") == "mono" else "m"  # a monocular map has no metre
     steps = [("sparse", lambda: export_sparse(out / "sparse.ply", X, colors if colors.any() else None))]
     if nodes:
         steps += [("topology", lambda: write_topology(out / "topology.json", nodes, edges)),
-                  ("topology_png", lambda: plot_topology(out / "topology.png", nodes, edges))]
+                  ("topology_png", lambda: plot_topology(out / "topology.png", nodes, edges, unit=unit))]
     steps.append(("map", lambda: save_map(slam_map, out, database=database, camera=camera, metadata=metadata or {})))
     if progress is not None:
         progress.total = len(steps)

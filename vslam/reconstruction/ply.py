@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vslam.errors import MapFormatError, VslamError
+from vslam.outputs import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +120,7 @@ def write_ply(
     path = Path(path)
     if not path.parent.is_dir():
         raise VslamError(f"{path.parent}: output folder does not exist; create it first")
-    with open(path, "wb") as fh:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a failed write leaves an existing file whole
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         if binary:
             fh.write(vert.tobytes())

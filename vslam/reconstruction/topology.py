@@ -18,6 +18,7 @@ Example:
 """
 from __future__ import annotations
 
+import io
 import json
 import logging
 from pathlib import Path
@@ -26,6 +27,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from vslam.errors import MapFormatError, VslamError
+from vslam.outputs import atomic_write_bytes, atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +106,7 @@ def write_topology(path_json: str | Path, nodes: Iterable[Any], edges: Iterable[
     path = Path(path_json)
     if not path.parent.is_dir():
         raise VslamError(f"{path.parent}: output folder does not exist; create it first")
-    path.write_text(json.dumps(doc, indent=1))
-    return path
+    return atomic_write_text(path, json.dumps(doc, indent=1))
 
 
 def read_topology(path_json: str | Path) -> tuple[list[dict], list[dict]]:
@@ -131,9 +132,11 @@ def plane_axes(centres: np.ndarray) -> tuple[int, int]:
     return (int(a), int(b)) if a < b else (int(b), int(a))
 
 
-def plot_topology(path_png: str | Path, nodes: Iterable[Any], edges: Iterable[Any], title: str = "topological map") -> Path:
+def plot_topology(path_png: str | Path, nodes: Iterable[Any], edges: Iterable[Any], title: str = "topological map",
+                  unit: str = "m") -> Path:
     """Draw the graph from above: nodes at the camera centres projected onto the plane of their
-    two largest extents, edges coloured by kind (covisibility grey, odometry blue, loops thick red)."""
+    two largest extents, edges coloured by kind (covisibility grey, odometry blue, loops thick red);
+    ``unit`` of the axes (``arbitrary scale`` for a monocular map)."""
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure  # no pyplot: no global backend state
 
@@ -163,16 +166,17 @@ def plot_topology(path_png: str | Path, nodes: Iterable[Any], edges: Iterable[An
         ax.plot(*xy[-1], "s", color="tab:orange", ms=7, zorder=5, label="last")
         ax.autoscale()
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel(f"{'xyz'[ax_a]} [m]")
-    ax.set_ylabel(f"{'xyz'[ax_b]} [m]")
+    ax.set_xlabel(f"{'xyz'[ax_a]} [{unit}]")
+    ax.set_ylabel(f"{'xyz'[ax_b]} [{unit}]")
     ax.set_title(title)
     ax.grid(True, lw=0.3, alpha=0.5)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     path = Path(path_png)
     if not path.parent.is_dir():
         raise VslamError(f"{path.parent}: output folder does not exist; create it first")
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    return path
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 __all__ = ["EDGE_KINDS", "nodes_from_poses", "normalize", "plane_axes", "plot_topology", "read_topology",

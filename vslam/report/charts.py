@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vslam.report.page import new_figure, png_data_uri
-from vslam.report.run_data import RunData, aligned_positions, loop_positions
+from vslam.report.run_data import RunData, aligned_positions, loop_positions, lost_gaps, with_breaks
 
 
 def top_axes(T_world_cam: np.ndarray | None, points: np.ndarray | None = None) -> tuple[int, int]:
@@ -26,6 +26,11 @@ def top_axes(T_world_cam: np.ndarray | None, points: np.ndarray | None = None) -
             return a, b
     pts = points if points is not None else (np.asarray(T_world_cam)[:, :3, 3] if T_world_cam is not None else None)
     return top_view_axes(pts) if pts is not None and len(pts) >= 2 else (0, 1)
+
+
+def axis_unit(run: RunData, aligned: bool) -> str:
+    """``m``, or ``arbitrary scale`` for a monocular run's own frame (not Sim(3)-aligned to ground truth)."""
+    return "arbitrary scale" if run.stats.get("sensor") == "mono" and not aligned else "m"
 
 
 def gt_span(run: RunData):
@@ -55,25 +60,28 @@ def plot_trajectory(run: RunData) -> str | None:
     ev = run.evaluation
     if ev is not None and len(ev.ate_errors) >= 2:
         p = ev.est_aligned.positions
-        segs = np.stack([p[:-1][:, [a, b]], p[1:][:, [a, b]]], axis=1)
+        keep = ~lost_gaps(run, ev.est_aligned.timestamps)  # no segment across frames that were lost
+        segs = np.stack([p[:-1][:, [a, b]], p[1:][:, [a, b]]], axis=1)[keep]
         from matplotlib.colors import Normalize
 
         lc = LineCollection(segs, cmap="viridis", lw=2.0,
                             norm=Normalize(0.0, max(float(ev.ate_errors.max()), 1e-9)))
-        lc.set_array(0.5 * (ev.ate_errors[:-1] + ev.ate_errors[1:]))
+        lc.set_array((0.5 * (ev.ate_errors[:-1] + ev.ate_errors[1:]))[keep])
         ax.add_collection(lc)
         fig.colorbar(lc, ax=ax, label="position error [m]", shrink=0.8)
         ax.plot([], [], "-", color="#21918c", lw=2, label="estimate (aligned)")
     else:
-        ax.plot(est[:, a], est[:, b], "-", color="#3182bd", lw=1.5,
+        line = with_breaks(est[:, [a, b]], lost_gaps(run, run.est.timestamps))  # NaN: lost frames between
+        ax.plot(line[:, 0], line[:, 1], "-", color="#3182bd", lw=1.5,
                 label="estimate" + (" (aligned)" if ev is not None else ""))
     ax.plot(est[0, a], est[0, b], "o", color="k", ms=5, label="start")
     loops = loop_positions(run, est)
     for i, (q, m, _loop) in enumerate(loops):
         ax.plot([q[a], m[a]], [q[b], m[b]], "--", color="#e31a1c", lw=1.2, label="loop closure" if i == 0 else None)
         ax.plot([q[a], m[a]], [q[b], m[b]], "o", mfc="none", color="#e31a1c", ms=7)
-    ax.set_xlabel(f"{'xyz'[a]} [m]")
-    ax.set_ylabel(f"{'xyz'[b]} [m]")
+    unit = axis_unit(run, aligned=ev is not None)
+    ax.set_xlabel(f"{'xyz'[a]} [{unit}]")
+    ax.set_ylabel(f"{'xyz'[b]} [{unit}]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
     ax.grid(alpha=0.3)
@@ -92,7 +100,8 @@ def plot_error(run: RunData) -> str | None:
     dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt, axis=0), axis=1))])
     fig = new_figure(6.4, 3.0)
     ax = fig.add_subplot(1, 1, 1)
-    ax.plot(dist, ev.ate_errors, "-", color="#08519c", lw=1.2)
+    line = with_breaks(np.column_stack([dist, ev.ate_errors]), lost_gaps(run, ev.gt_matched.timestamps))
+    ax.plot(line[:, 0], line[:, 1], "-", color="#08519c", lw=1.2)
     ax.axhline(ev.ate.rmse, color="#e31a1c", lw=1, ls="--", label=f"RMSE {ev.ate.rmse:.4f} m")
     ax.set_ylim(0.0, max(float(ev.ate_errors.max()), 1e-9) * 1.15)
     ax.set_xlabel("distance along the ground-truth path [m]")
@@ -105,6 +114,8 @@ def plot_error(run: RunData) -> str | None:
 
 
 PER_KEYFRAME_STAGES = ("local_ba",)  # stats.json's stage_ms holds these per call (per keyframe), not per frame
+OFF_THREAD_STAGES = ("prepare",)  # another thread's time (frame preparation while prefetching): outside "total"
+OTHER_STAGE = "other"  # the tracking time no stage timer covers: ``total`` minus the timed stages
 
 
 def split_stage_times(stats: dict) -> tuple[dict[str, float], dict[str, float]]:
@@ -115,26 +126,66 @@ def split_stage_times(stats: dict) -> tuple[dict[str, float], dict[str, float]]:
     return {k: v for k, v in stage_ms.items() if k not in per_kf}, per_kf
 
 
-def plot_stages(stats: dict) -> str | None:
-    """Mean milliseconds per frame of every tracking stage, and per keyframe of the mapping stages
-    (local BA), drawn apart (PNG URI)."""
+def stage_bars(stats: dict) -> tuple[dict[str, float], dict[str, float], dict[str, float], float | None]:
+    """What the stage chart draws: ``(tracking, off_thread, per_keyframe, tracking_total)``.
+
+    ``tracking`` holds the per-frame stages timed on the tracking thread plus, when ``stage_ms``
+    has a ``total`` larger than their sum, an ``other`` stage with the rest, so that
+    ``sum(tracking.values()) == tracking_total``: the title's number is the sum of those bars.
+    ``tracking_total`` is None when ``stage_ms`` has no ``total``. ``off_thread`` (``prepare``:
+    another thread's work) and ``per_keyframe`` (local BA, per call) are not part of it.
+    """
     per_frame, per_kf = split_stage_times(stats)
-    if not per_frame and not per_kf:
+    off_thread = {k: v for k, v in per_frame.items() if k in OFF_THREAD_STAGES and v > 0}
+    tracking = {k: v for k, v in per_frame.items() if k not in OFF_THREAD_STAGES}
+    total = (stats.get("stage_ms") or {}).get("total")
+    if not isinstance(total, (int, float)) or isinstance(total, bool):
+        return tracking, off_thread, per_kf, None
+    rest = float(total) - sum(tracking.values())
+    if rest > 1e-3 * max(float(total), 1.0):  # more than rounding: time no stage timer covers
+        tracking[OTHER_STAGE] = tracking.get(OTHER_STAGE, 0.0) + rest
+    return tracking, off_thread, per_kf, float(sum(tracking.values()))
+
+
+def stages_figure(stats: dict):
+    """The stage chart as a matplotlib figure (None without stage times); see :func:`plot_stages`."""
+    tracking, off_thread, per_kf, total = stage_bars(stats)
+    if not tracking and not off_thread and not per_kf:
         return None
-    names = sorted(per_frame, key=per_frame.get) + sorted(per_kf, key=per_kf.get)
-    values = [per_frame.get(n, per_kf.get(n)) for n in names]
-    colors = ["#6baed6" if n in per_frame else "#fd8d3c" for n in names]
-    labels = [n if n in per_frame else f"{n} (per keyframe)" for n in names]
+    groups = ((tracking, "#6baed6", "{}", "tracking thread, per frame"),
+              (off_thread, "#a1d99b", "{} (other thread)", "other thread, per frame"),
+              (per_kf, "#fd8d3c", "{} (per keyframe)", "per keyframe"))
+    names, values, colors, labels = [], [], [], []
+    for stages, color, label, _kind in groups:
+        order = sorted((n for n in stages if n != OTHER_STAGE), key=stages.get)
+        order += [OTHER_STAGE] if OTHER_STAGE in stages else []  # the rest last, after the timed stages
+        for n in order:
+            names.append(n)
+            values.append(stages[n])
+            colors.append(color)
+            labels.append(label.format(f"{n} (untimed)" if stages is tracking and n == OTHER_STAGE else n))
     fig = new_figure(6.4, 0.35 * len(names) + 1.3)
     ax = fig.add_subplot(1, 1, 1)
     ax.barh(range(len(names)), values, color=colors)
     ax.set_yticks(range(len(names)), labels, fontsize=8)
-    ax.set_xlabel("mean time [ms]: per frame (blue), per keyframe (orange)")
-    total = (stats.get("stage_ms") or {}).get("total")
-    ax.set_title("time per stage" + (f" (tracking total {float(total):.1f} ms/frame)" if total is not None else ""))
+    ax.set_xlabel("mean time [ms]")
+    from matplotlib.patches import Patch
+
+    ax.legend(handles=[Patch(color=color, label=kind) for stages, color, _l, kind in groups if stages],
+              fontsize=7, loc="best")
+    ax.set_title("time per stage" + (f": tracking {total:.1f} ms/frame (sum of the blue bars)"
+                                     if total is not None else ""), fontsize=10)
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
-    return png_data_uri(fig)
+    return fig
+
+
+def plot_stages(stats: dict) -> str | None:
+    """Mean milliseconds per frame of every tracking stage (and ``other``: the rest of the tracking
+    total, so the blue bars add up to the total in the title), of frame preparation on another
+    thread, and per keyframe of the mapping stages (local BA), drawn apart (PNG URI)."""
+    fig = stages_figure(stats)
+    return png_data_uri(fig) if fig is not None else None
 
 
 def plot_map(run: RunData) -> str | None:
@@ -149,9 +200,11 @@ def plot_map(run: RunData) -> str | None:
     colors = rgb / 255.0 if rgb is not None else "#444444"
     ax.scatter(xyz[:, a], xyz[:, b], s=1.0, c=colors, linewidths=0, label=f"{len(xyz)} map points")
     if traj is not None:
-        ax.plot(traj[:, a], traj[:, b], "-", color="#e6550d", lw=1.2, label="trajectory")
-    ax.set_xlabel(f"{'xyz'[a]} [m]")
-    ax.set_ylabel(f"{'xyz'[b]} [m]")
+        line = with_breaks(traj[:, [a, b]], lost_gaps(run, run.est.timestamps))
+        ax.plot(line[:, 0], line[:, 1], "-", color="#e6550d", lw=1.2, label="trajectory")
+    unit = axis_unit(run, aligned=False)
+    ax.set_xlabel(f"{'xyz'[a]} [{unit}]")
+    ax.set_ylabel(f"{'xyz'[b]} [{unit}]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8, markerscale=6)

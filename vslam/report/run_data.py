@@ -50,6 +50,7 @@ _STATS_TYPES: dict[str, tuple[type, ...]] = {
     "frames": (int,), "tracked": (int,), "lost": (int,), "skipped_frames": (int,), "start_frame": (int,),
     "loops": (list,), "stage_ms": (dict,), "path": (str,), "sensor": (str,), "dataset": (str,),
     "error": (str,), "fps": (int, float), "wall_s": (int, float), "ate_rmse": (int, float),
+    "gt_file": (str,), "gt_frame": (str,), "localized": (int,), "relocalizations": (int,),
 }
 
 
@@ -70,8 +71,12 @@ def _check_stats(path: Path, stats: Any) -> None:
             raise VslamError(f"{path}: stage_ms[{k!r}] is {v!r:.40}, expected a number of milliseconds")
 
 
-def load_run(folder: str | Path) -> RunData:
-    """Load a run folder's stats, trajectory, ground truth (aligned and evaluated) and sparse map."""
+def load_run(folder: str | Path, gt: str | Path | None = None) -> RunData:
+    """Load a run folder's stats, trajectory, ground truth (aligned and evaluated) and sparse map.
+
+    ``gt`` chooses the ground truth (``vslam report --gt``): a trajectory file, ``"none"``, or None:
+    ``groundtruth.txt`` in the folder, else the one the run used (``stats.json`` ``gt_file``), else
+    the dataset's at ``stats.json``'s ``path``."""
     from vslam.eval import evaluate_trajectories, read_trajectory
 
     folder = Path(folder)
@@ -97,20 +102,7 @@ def load_run(folder: str | Path) -> RunData:
         run.frame_times = np.asarray(ds.timestamps, dtype=float)
     except Exception as exc:  # noqa: BLE001 - the report works without the dataset
         log.info("dataset of %s not opened: %s", folder, exc)
-    gt_file = folder / "groundtruth.txt"
-    if gt_file.is_file():
-        try:
-            run.gt, run.gt_source = read_trajectory(gt_file), str(gt_file.name)
-        except VslamError as exc:
-            run.notes.append(f"groundtruth.txt not readable: {exc}")
-    if run.gt is None and ds is not None:
-        try:
-            run.gt = ds.ground_truth()
-            run.gt_source = f"dataset {stats.get('path')}" if run.gt is not None else ""
-        except Exception as exc:  # noqa: BLE001
-            run.notes.append(f"ground truth of the dataset not readable: {exc}")
-    if run.gt is None:
-        run.notes.append("no ground truth (neither groundtruth.txt nor a readable dataset at stats.json's path)")
+    _load_ground_truth(run, ds, gt)
     if run.est is not None and run.gt is not None and len(run.est) >= 3:
         mode = "sim3" if stats.get("sensor") == "mono" else "se3"
         try:
@@ -127,6 +119,66 @@ def load_run(folder: str | Path) -> RunData:
         except VslamError as exc:
             run.notes.append(f"sparse.ply not readable: {exc}")
     return run
+
+
+def _load_ground_truth(run: RunData, ds: Any, gt: str | Path | None) -> None:
+    """Set ``run.gt`` and ``run.gt_source`` (see :func:`load_run`); problems become notes."""
+    from vslam.eval import read_trajectory
+
+    stats = run.stats
+    if isinstance(gt, str) and gt.strip().lower() == "none":
+        run.notes.append("no ground truth (--gt none)")
+        return
+    files = [Path(gt)] if gt is not None else [run.folder / "groundtruth.txt"]
+    if gt is None and stats.get("gt_frame") == "as given" and isinstance(stats.get("gt_file"), str):
+        files.append(Path(stats["gt_file"]))  # the run was given this file with --gt
+    for gt_file in files:
+        if gt is not None and not gt_file.is_file():
+            raise VslamError(f"--gt {gt_file}: no such file; name a TUM, KITTI or EuRoC trajectory, or --gt none")
+        if gt_file.is_file():
+            try:
+                run.gt = read_trajectory(gt_file, duplicates="keep_last")
+                run.gt_source = str(gt_file.name if gt_file.parent == run.folder else gt_file)
+                return
+            except VslamError as exc:
+                run.notes.append(f"{gt_file.name} not readable: {exc}")
+    if gt is None and "gt_file" in stats and stats.get("gt_file") is None:
+        run.notes.append("no ground truth: the run had none" + (f" ({stats['gt_problem']})" if stats.get("gt_problem")
+                                                               else "") + "; choose one with --gt FILE")
+        return
+    if ds is not None and gt is None:
+        try:
+            run.gt = ds.ground_truth()
+            run.gt_source = (stats.get("gt_file") or f"dataset {stats.get('path')}") if run.gt is not None else ""
+        except Exception as exc:  # noqa: BLE001
+            run.notes.append(f"ground truth of the dataset not readable: {exc}")
+    if run.gt is None:
+        run.notes.append("no ground truth (neither groundtruth.txt nor a readable dataset at stats.json's path)")
+
+
+def lost_gaps(run: RunData, timestamps: np.ndarray) -> np.ndarray:
+    """``(N - 1,)`` bool: True where frames without a pose (lost) lie between the poses at
+    ``timestamps[i]`` and ``timestamps[i + 1]``: dataset frames between them when the dataset's
+    frame times are known, else a step over 1.5 times the median step."""
+    t = np.asarray(timestamps, dtype=float)
+    if len(t) < 2:
+        return np.zeros(max(len(t) - 1, 0), dtype=bool)
+    if run.frame_times is not None and len(run.frame_times):
+        ft = np.sort(np.asarray(run.frame_times, dtype=float))
+        tol = 0.25 * float(np.median(np.diff(ft))) if len(ft) > 1 else 1e-3
+        between = np.searchsorted(ft, t[1:] - tol) - np.searchsorted(ft, t[:-1] + tol, side="right")
+        return between > 0
+    dt = np.diff(t)
+    return dt > 1.5 * float(np.median(dt))
+
+
+def with_breaks(xy: np.ndarray, gaps: np.ndarray) -> np.ndarray:
+    """``xy`` ``(N, D)`` with a NaN row after each row ``i`` where ``gaps[i]``: a plotted line
+    stops there instead of joining the poses on either side of a lost stretch."""
+    xy = np.asarray(xy, dtype=float)
+    if not np.any(gaps):
+        return xy
+    return np.insert(xy, np.flatnonzero(gaps) + 1, np.nan, axis=0)
 
 
 def aligned_positions(run: RunData) -> np.ndarray:

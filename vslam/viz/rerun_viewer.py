@@ -9,6 +9,11 @@ a viewer is created. Smaller recordings: ``image_scale`` (``--viz-scale 0.5`` lo
 size) and ``image_every`` (``--viz-every N`` logs the image, features and depth of every N-th
 frame only; poses, trajectory and map are logged for every frame).
 
+Where no viewer can open (Linux without ``DISPLAY``/``WAYLAND_DISPLAY``, no ``rerun`` executable,
+or its start fails) :class:`ViewerUnavailable` is raised at the start, and ``vslam run`` warns
+(suggesting ``--viz rerun:FILE.rrd``) and runs without a viewer; a viewer that fails later is a
+warning too, never a failed run.
+
 What is logged per frame (timelines ``frame`` = frame index and ``time`` = timestamp in s):
 
 * ``world/camera``: the camera pose ``T_world_cam`` as a transform (camera -> world);
@@ -48,6 +53,21 @@ def _import_rerun():
     except ImportError:
         raise VslamError("--viz rerun needs the rerun SDK: pip install 'vslam[viz]' (rerun-sdk==0.41.0)") from None
     return rr
+
+
+class ViewerUnavailable(VslamError):
+    """No viewer can be opened here (no display, no ``rerun`` executable, or its start failed);
+    :func:`vslam.api.run_path` then runs without one, with a warning."""
+
+
+def no_display_reason(environ: Any = None, platform: str | None = None) -> str | None:
+    """Why a spawned viewer window cannot appear (Linux without ``DISPLAY`` or ``WAYLAND_DISPLAY``:
+    an SSH session, a container, CI), or None when it can (or this cannot tell)."""
+    environ = os.environ if environ is None else environ
+    platform = sys.platform if platform is None else platform
+    if platform.startswith("linux") and not environ.get("DISPLAY") and not environ.get("WAYLAND_DISPLAY"):
+        return "no display: neither DISPLAY nor WAYLAND_DISPLAY is set"
+    return None
 
 
 def rerun_executable() -> str | None:
@@ -133,13 +153,14 @@ class RerunViewer:
         self._camera_logged = False
         self._last_state: str | None = None
         self._n = 0
+        self._failed = False
         target = str(target)
         if target == "spawn":
-            exe = rerun_executable()
-            if exe is None:
-                raise VslamError("--viz rerun: the rerun viewer executable was not found (next to "
-                                 f"{sys.executable} or on PATH); record with --viz rerun:FILE.rrd and open it later")
-            rr.spawn(executable_path=exe, recording=self.rec)
+            try:
+                self._spawn(rr)
+            except ViewerUnavailable:
+                self.rec.disconnect()
+                raise
         elif target.startswith("rerun+http") or target.startswith("rerun+https"):
             self.rec.connect_grpc(target)
         else:
@@ -151,6 +172,22 @@ class RerunViewer:
             self.rec.save(str(path))
         self.target = target
         self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
+
+    def _spawn(self, rr: Any) -> None:
+        """Start a viewer for this recording; :class:`ViewerUnavailable` when none can start here."""
+        hint = "record with --viz rerun:FILE.rrd and open it with `rerun FILE.rrd` where there is a display"
+        reason = no_display_reason()
+        if reason is not None:
+            raise ViewerUnavailable(f"--viz rerun: no viewer can open here ({reason}); {hint}")
+        exe = rerun_executable()
+        if exe is None:
+            raise ViewerUnavailable("--viz rerun: the rerun viewer executable was not found (next to "
+                                    f"{sys.executable} or on PATH); {hint}")
+        try:
+            rr.spawn(executable_path=exe, recording=self.rec)
+        except Exception as exc:  # noqa: BLE001 - rerun raises its own errors (gRPC, process start)
+            raise ViewerUnavailable(f"--viz rerun: the viewer did not start ({type(exc).__name__}: {exc}); "
+                                    f"{hint}") from None
 
     @classmethod
     def from_spec(cls, spec: str, **kwargs: Any) -> "RerunViewer":
@@ -166,7 +203,17 @@ class RerunViewer:
         """A two-argument ``on_frame(frame, result)`` callback for :func:`vslam.runner.run_sequence`."""
         if system is not None:
             self.system = system
-        return lambda frame, result: self.on_frame(frame, result, self.system)
+        return self._guarded_on_frame
+
+    def _guarded_on_frame(self, frame: Any, result: Any) -> None:
+        """:meth:`on_frame`; a viewer failure is warned about once and stops the logging, never the run."""
+        if self._failed:
+            return
+        try:
+            self.on_frame(frame, result, self.system)
+        except Exception as exc:  # noqa: BLE001 - the viewer is optional to the run
+            self._failed = True
+            log.warning("the rerun viewer failed (%s: %s); the run goes on without it", type(exc).__name__, exc)
 
     def _log_camera(self, camera: Any, shape: tuple[int, ...]) -> None:
         rr = self._rr
@@ -238,14 +285,19 @@ class RerunViewer:
         self.on_frame(frame, track_result, self.system)
 
     def close(self) -> None:
-        """Flush and end the recording (the .rrd file is complete after this)."""
+        """Flush and end the recording (the .rrd file is complete after this). A viewer that went
+        away (gRPC errors) is a warning: the run it showed has finished and written its outputs."""
         try:
-            xyz = map_points_of(self.system)
-            if xyz is not None and len(xyz):
-                self.rec.log("world/map_points", self._rr.Points3D(xyz, radii=0.01, colors=[[120, 120, 220]]))
-            self.rec.flush()
-        finally:
-            self.rec.disconnect()
+            try:
+                xyz = map_points_of(self.system)
+                if xyz is not None and len(xyz) and not self._failed:
+                    self.rec.log("world/map_points", self._rr.Points3D(xyz, radii=0.01, colors=[[120, 120, 220]]))
+                self.rec.flush()
+            finally:
+                self.rec.disconnect()
+        except Exception as exc:  # noqa: BLE001 - never turn a finished run into a failure
+            log.warning("the rerun viewer could not be closed cleanly (%s: %s); the run's outputs are complete",
+                        type(exc).__name__, exc)
 
     def __enter__(self) -> "RerunViewer":
         return self

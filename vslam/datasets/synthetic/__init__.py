@@ -11,6 +11,7 @@ On disk (TUM layout, read back with ``vslam.datasets.open_dataset``)::
 """
 from __future__ import annotations
 
+from vslam.datasets.synthetic.imu import SyntheticImu, SyntheticImuConfig, simulate_imu
 from vslam.datasets.synthetic.plot import plot_ground_truth_topdown
 from vslam.datasets.synthetic.renderer import Renderer, default_renderer, render
 from vslam.datasets.synthetic.scene import (
@@ -23,7 +24,7 @@ from vslam.datasets.synthetic.trajectory import forward_path, look_rotation, loo
 from vslam.datasets.synthetic.writer import DEPTH_SCALE, depth_to_png, render_sequence
 
 __all__ = [
-    "Box", "DEPTH_SCALE", "Face", "Renderer", "Scene", "SceneSpec", "SyntheticConfig", "SyntheticSequence",
+    "Box", "DEPTH_SCALE", "SyntheticImu", "SyntheticImuConfig", "simulate_imu", "Face", "Renderer", "Scene", "SceneSpec", "SyntheticConfig", "SyntheticSequence",
     "add_depth_noise", "add_pixel_noise", "build_scene", "default_renderer", "default_scene", "depth_to_png",
     "distance_to_scene",
     "forward_path", "look_rotation", "loop_path", "make_path", "missing_depth_mask",

@@ -41,6 +41,18 @@ def loop_path(
     first exactly and with ``laps > 1`` the start of the loop is revisited after ``(n-1)/laps`` frames.
     """
     phi = 2.0 * np.pi * laps * np.arange(n_frames) / max(n_frames - 1, 1)
+    return loop_poses(phi, radii, height, center)
+
+
+def loop_poses(
+    phi: np.ndarray,
+    radii: tuple[float, float] = (1.8, 1.2),
+    height: float = 1.4,
+    center: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
+    """The poses of :func:`loop_path` at any phases ``phi (N,)`` (a smooth, analytic function of
+    ``phi``: the synthetic IMU differentiates it)."""
+    phi = np.asarray(phi, dtype=float)
     a, b = radii
     pos = np.stack([
         center[0] + a * np.cos(phi),
@@ -62,7 +74,16 @@ def forward_path(
     end: tuple[float, float, float] = (1.9, -0.8, 1.35),
 ) -> np.ndarray:
     """A straight forward motion along the optical axis (with a gentle yaw/pitch sway)."""
-    s = np.linspace(0.0, 1.0, n_frames)[:, None]
+    return forward_poses(np.linspace(0.0, 1.0, n_frames), start, end)
+
+
+def forward_poses(
+    s: np.ndarray,
+    start: tuple[float, float, float] = (-2.2, -0.8, 1.3),
+    end: tuple[float, float, float] = (1.9, -0.8, 1.35),
+) -> np.ndarray:
+    """The poses of :func:`forward_path` at any path fractions ``s (N,)`` (0: start, 1: end)."""
+    s = np.asarray(s, dtype=float)[:, None]
     start_a, end_a = np.asarray(start, float), np.asarray(end, float)
     pos = start_a + s * (end_a - start_a)
     dx, dy, dz = end_a - start_a
@@ -72,6 +93,18 @@ def forward_path(
     yaw = heading + np.deg2rad(6.0) * np.sin(phase)
     pitch = base_pitch + np.deg2rad(-5.0) + np.deg2rad(3.0) * np.sin(2.0 * phase)
     return poses_from(pos, yaw, pitch)
+
+
+def path_at(kind: str, u: np.ndarray, n_frames: int, laps: float = 1.0) -> np.ndarray:
+    """``T_world_cam (N, 4, 4)`` of :func:`make_path`'s path at fractional frame indices ``u (N,)``
+    (``u = i`` gives frame ``i``'s pose up to rounding; values outside ``[0, n_frames - 1]``
+    continue the same analytic path)."""
+    u = np.asarray(u, dtype=float)
+    if kind == "loop":
+        return loop_poses(2.0 * np.pi * laps * u / max(n_frames - 1, 1))
+    if kind == "forward":
+        return forward_poses(u / max(n_frames - 1, 1))
+    return make_path(kind, n_frames, laps)  # raises for an unknown kind
 
 
 def make_path(kind: str, n_frames: int, laps: float = 1.0) -> np.ndarray:

@@ -7,6 +7,19 @@ Layout (read back by :mod:`vslam.datasets.tum`)::
     depth/<ts>.png  depth.txt      uint16, metres * depth_scale (5000), 0 = invalid
     groundtruth.txt                TUM ``timestamp tx ty tz qx qy qz qw`` (T_world_cam)
     camera.yaml                    fx fy cx cy width height dist baseline depth_scale fps
+
+With ``imu=SyntheticImuConfig(...)`` (opt-in; the default output is unchanged) also, in EuRoC layout
+(:mod:`vslam.datasets.synthetic.imu`)::
+
+    imu0/data.csv                  #timestamp [ns], w_RS_S xyz [rad/s], a_RS_S xyz [m/s^2] (IMU frame)
+    imu0/sensor.yaml               EuRoC IMU sensor.yaml: noise densities, random walks, rate_hz, and
+                                   T_BS = T_cam_imu (the "body" is the camera of groundtruth.txt)
+    imu0/camchain-imucam.yaml      Kalibr: cam0 T_cam_imu, timeshift_cam_imu 0
+    imu0/groundtruth.csv           EuRoC state_groundtruth_estimate0 columns for the IMU: p, q (wxyz),
+                                   v (world), b_w, b_a at every sample
+
+``vslam.datasets.imu.read_imu_calibration([imu0/sensor.yaml, imu0/camchain-imucam.yaml])`` reads the
+calibration back; ``load_imu_csv(imu0/data.csv)`` the samples.
 """
 from __future__ import annotations
 
@@ -20,6 +33,7 @@ import cv2
 import numpy as np
 import yaml
 
+from vslam.datasets.synthetic.imu import SyntheticImuConfig, write_imu
 from vslam.datasets.synthetic.sequence import SyntheticConfig, SyntheticSequence
 from vslam.errors import DatasetError
 from vslam.trajectory import write_tum
@@ -54,8 +68,11 @@ def render_sequence(
     out_dir: str | Path,
     config: SyntheticConfig = SyntheticConfig(),
     progress: Callable[[int], None] | None = None,
+    imu: SyntheticImuConfig | None = None,
 ) -> Path:
     """Render ``config`` into ``out_dir`` (created) in TUM layout and return ``out_dir``.
+
+    ``imu``: also write the synthetic IMU in ``imu0/`` (module docstring).
 
     ``progress(n)`` is called after each frame with the number of frames done (e.g. a tqdm update).
     """
@@ -93,6 +110,8 @@ def render_sequence(
             (out / f"{key}.txt").write_text(_list_header(titles[key]) + "".join(lines))
     write_tum(out / "groundtruth.txt", seq.ground_truth())
     write_camera_yaml(out / "camera.yaml", config)
+    if imu is not None:
+        write_imu(out / "imu0", config, imu)
     log.info("synthetic sequence: %d frames written to %s", len(seq), out)
     return out
 

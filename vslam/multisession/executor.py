@@ -1,0 +1,115 @@
+"""Where the tasks of ``vslam map`` run: a local process pool or Ray (the bench's executors'
+pattern, :mod:`vslam.bench.harness`, for any picklable top-level function).
+
+* ``local``: each task in a fresh ``spawn`` process (a crash cannot take the others down),
+  ``workers`` at a time (default ``os.cpu_count()``); ``workers=0`` runs them one after the other
+  in the calling process (debugging, tests).
+* ``ray``: each task is a Ray task (``num_cpus=1``, no retries) on the cluster at ``address``, or
+  on a local Ray started when the executor is entered (``num_cpus=workers or os.cpu_count()``, no
+  dashboard, its session folder in a temporary directory removed at the end) and shut down when it
+  is left. Tasks get paths and small records and write their results as files (run folders) on
+  storage every node sees (``OUT``); what comes back through the object store is a small dict.
+
+A task whose process dies (or whose Ray task fails) gives ``on_error(args, message)`` in its place.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from vslam.errors import VslamError
+
+
+def _in_fresh_process(fn: Callable, args: tuple) -> Any:
+    ctx = multiprocessing.get_context("spawn")
+    with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        return pool.submit(fn, *args).result()
+
+
+class TaskExecutor:
+    """``with TaskExecutor("ray", workers=2) as ex: ex.map(fn, [args, ...], on_error)``."""
+
+    def __init__(self, kind: str = "local", workers: int | None = None, address: str | None = None) -> None:
+        if kind not in ("local", "ray"):
+            raise VslamError(f"unknown executor {kind!r}; use local or ray")
+        if address and kind != "ray":
+            raise VslamError("--address is for --executor ray")
+        if workers is not None and workers < 0:
+            raise VslamError(f"--workers must be >= 0, got {workers}")
+        if kind == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise VslamError("--executor ray needs Ray: pip install 'vslam[ray]' (ray==2.60.0)") from None
+        self.kind, self.address = kind, address
+        self.workers = (os.cpu_count() or 1) if workers is None else workers
+        self._started = False
+        self._tmp: Path | None = None
+
+    @property
+    def description(self) -> str:
+        if self.kind == "ray":
+            return f"ray ({self.address})" if self.address else f"ray (local, {max(self.workers, 1)} CPUs)"
+        return "local (in process)" if self.workers == 0 else f"local ({self.workers} processes)"
+
+    def __enter__(self) -> "TaskExecutor":
+        if self.kind != "ray":
+            return self
+        import ray
+
+        if ray.is_initialized():
+            return self
+        if self.address:
+            ray.init(address=self.address, log_to_driver=False)
+        else:
+            from vslam.bench.harness import start_local_ray
+
+            self._tmp = start_local_ray(max(self.workers, 1))
+        self._started = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._started:
+            import ray
+
+            ray.shutdown()
+            self._started = False
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
+        """``[fn(*args) for args in args_list]``, run as tasks; results in the order of ``args_list``."""
+        if not args_list:
+            return []
+        if self.kind == "ray":
+            return self._map_ray(fn, args_list, on_error)
+        if self.workers == 0:
+            return [fn(*args) for args in args_list]
+        out: list = [None] * len(args_list)
+        with cf.ThreadPoolExecutor(max_workers=self.workers) as threads:
+            futures = {threads.submit(_in_fresh_process, fn, args): i for i, args in enumerate(args_list)}
+            for fut in cf.as_completed(futures):
+                i = futures[fut]
+                try:
+                    out[i] = fut.result()
+                except Exception as exc:  # noqa: BLE001 - the process died or the task could not start
+                    out[i] = on_error(args_list[i], f"the task's process failed: {type(exc).__name__}: {exc}")
+        return out
+
+    def _map_ray(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
+        import ray
+
+        task = ray.remote(num_cpus=1, max_retries=0)(fn)
+        refs = [task.remote(*args) for args in args_list]
+        out: list = []
+        for args, ref in zip(args_list, refs):
+            try:
+                out.append(ray.get(ref))
+            except Exception as exc:  # noqa: BLE001 - worker died, task could not be pickled, ...
+                out.append(on_error(args, f"Ray task failed: {type(exc).__name__}: {exc}"))
+        return out
