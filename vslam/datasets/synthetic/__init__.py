@@ -8,9 +8,14 @@ In memory::
 On disk (TUM layout, read back with ``vslam.datasets.open_dataset``)::
 
     render_sequence("out/sequence", SyntheticConfig(n_frames=300))
+
+Many sessions through the one room, for ``vslam map`` (:mod:`~vslam.datasets.synthetic.fleet`)::
+
+    render_fleet("out/fleet", 16)   # out/fleet/s00 ... s15, lone, sessions.yaml, fleet.json
 """
 from __future__ import annotations
 
+from vslam.datasets.synthetic.fleet import FleetSequence, FleetSession, fleet_sessions, render_fleet
 from vslam.datasets.synthetic.imu import SyntheticImu, SyntheticImuConfig, simulate_imu
 from vslam.datasets.synthetic.plot import plot_ground_truth_topdown
 from vslam.datasets.synthetic.renderer import Renderer, default_renderer, render
@@ -24,7 +29,7 @@ from vslam.datasets.synthetic.trajectory import forward_path, look_rotation, loo
 from vslam.datasets.synthetic.writer import DEPTH_SCALE, depth_to_png, render_sequence
 
 __all__ = [
-    "Box", "DEPTH_SCALE", "SyntheticImu", "SyntheticImuConfig", "simulate_imu", "Face", "Renderer", "Scene", "SceneSpec", "SyntheticConfig", "SyntheticSequence",
+    "Box", "DEPTH_SCALE", "FleetSequence", "FleetSession", "fleet_sessions", "render_fleet", "SyntheticImu", "SyntheticImuConfig", "simulate_imu", "Face", "Renderer", "Scene", "SceneSpec", "SyntheticConfig", "SyntheticSequence",
     "add_depth_noise", "add_pixel_noise", "build_scene", "default_renderer", "default_scene", "depth_to_png",
     "distance_to_scene",
     "forward_path", "look_rotation", "loop_path", "make_path", "missing_depth_mask",

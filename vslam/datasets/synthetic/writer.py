@@ -69,10 +69,14 @@ def render_sequence(
     config: SyntheticConfig = SyntheticConfig(),
     progress: Callable[[int], None] | None = None,
     imu: SyntheticImuConfig | None = None,
+    sequence: SyntheticSequence | None = None,
 ) -> Path:
     """Render ``config`` into ``out_dir`` (created) in TUM layout and return ``out_dir``.
 
     ``imu``: also write the synthetic IMU in ``imu0/`` (module docstring).
+
+    ``sequence``: the frames to write (default ``SyntheticSequence(config)``; e.g. a fleet session
+    along its own poses, :mod:`vslam.datasets.synthetic.fleet`), rendered with ``config``.
 
     ``progress(n)`` is called after each frame with the number of frames done (e.g. a tqdm update).
     """
@@ -83,7 +87,7 @@ def render_sequence(
             (out / sub).mkdir(exist_ok=True)
     except OSError as exc:
         raise DatasetError(f"{out}: cannot create the output folder ({exc.strerror}); choose another path") from None
-    seq = SyntheticSequence(config)
+    seq = SyntheticSequence(config) if sequence is None else sequence
     lists: dict[str, list[str]] = {"rgb": [], "depth": [], "right": []}
     # PNG encoding (which releases the GIL) runs on two threads while the next frame renders
     pending: deque[Future] = deque()

@@ -1,0 +1,130 @@
+"""How ``vslam map`` scales with the number of sessions (issue #26, "Scales" and "Parallel").
+
+Renders the synthetic fleet once (:mod:`vslam.datasets.synthetic.fleet`: arcs ``s00 .. s31`` of the
+room loop, consecutive arcs overlapping, plus ``lone`` which overlaps nothing), then maps fleets of
+``N`` arcs + ``lone`` with ``vslam map`` (local executor, ``--workers W``, a fresh output folder
+each) and reads ``sessions.json``: the wall time of the tracking, of the overlap search (one
+bag-of-words index, every keyframe queried once), of the pair verification and of the merge stage
+(tree merges + global BA + outputs), the candidate pairs verified against all ``N (N - 1) / 2``
+pairs, the components, and the ATE over every frame of the largest component after ONE SE(3)
+alignment to the fleet's ground truth. With ``--sequential N``, the ``N``-arc fleet is mapped again
+with ``--workers 1`` for the parallel speed-up.
+
+    python benchmarks/multisession_scaling.py -o /tmp/msbench --sizes 2 4 8 16 32 --sequential 16
+
+Writes ``DIR/results.json`` and prints the markdown table.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def fleet_ate(out: Path, fleet: Path, component: int = 0) -> tuple[float, dict[str, float], int]:
+    """RMSE over every frame of every session of ``component`` after ONE SE(3) alignment of them all
+    to the fleet's ground truth (``fleet/<name>/groundtruth.txt``, the room's frame); the
+    per-session RMSE under that alignment; the number of frames."""
+    from vslam.eval.metrics import align
+    from vslam.trajectory import read_tum
+
+    res = json.loads((out / "sessions.json").read_text())
+    est, ref, names = [], [], []
+    for s in res["sessions"]:
+        if s.get("component") != component:
+            continue
+        t, gt = read_tum(s["trajectory"]), read_tum(fleet / s["name"] / "groundtruth.txt")
+        idx = np.clip(np.searchsorted(gt.timestamps, t.timestamps - 1e-4), 0, len(gt.timestamps) - 1)
+        assert np.allclose(gt.timestamps[idx], t.timestamps, atol=1e-4), s["name"]
+        est.append(t.T_world_cam)
+        ref.append(gt.T_world_cam[idx])
+        names += [s["name"]] * len(idx)
+    E, G = np.concatenate(est), np.concatenate(ref)
+    a = align(E, G, "se3")
+    err = np.linalg.norm(E[:, :3, 3] @ (a.s * a.R).T + a.t - G[:, :3, 3], axis=1)
+    who = np.array(names)
+    per = {n: float(np.sqrt(np.mean(err[who == n] ** 2))) for n in dict.fromkeys(names)}
+    return float(np.sqrt(np.mean(err ** 2))), per, len(err)
+
+
+def write_spec(fleet: Path, n: int, lone: bool = True) -> Path:
+    """``sessions.yaml`` for the first ``n`` arcs (+ ``lone``) of the rendered fleet."""
+    from vslam.datasets.synthetic.fleet import LONE, session_name
+
+    names = [session_name(k) for k in range(n)] + ([LONE] if lone else [])
+    path = fleet / f"sessions_{n}.yaml"
+    path.write_text("sessions:\n" + "".join(f"  - {{name: {s}, data: {s}, sensor: rgbd}}\n" for s in names))
+    return path
+
+
+def map_fleet(fleet: Path, n: int, out: Path, workers: int) -> dict:
+    """One ``vslam map`` of the ``n``-arc fleet into ``out`` (a fresh folder); its figures."""
+    import shutil
+
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [sys.executable, "-m", "vslam", "map", str(write_spec(fleet, n)), "-o", str(out),
+           "--workers", str(workers)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
+    res = json.loads((out / "sessions.json").read_text())
+    ate, per, frames = fleet_ate(out, fleet)
+    tm, idx = res["timing"], res["index"]
+    return {
+        "arcs": n, "sessions": idx["sessions"], "workers": workers, "keyframes": idx["keyframes"],
+        "queries": idx["queries"], "candidate_pairs": idx["candidate_pairs"], "all_pairs": idx["all_pairs"],
+        "verified": len(res["overlaps"]), "components": [len(c) for c in res["components"]],
+        "lone_apart": ["lone"] in res["components"],
+        "tracking_s": tm["sessions_s"], "search_s": tm["overlap_search_s"], "index_s": idx.get("search_s"),
+        "verify_s": tm["verify_s"], "merge_s": tm["merge_s"], "total_s": tm["total_s"], "wall_s": round(wall, 1),
+        "ate_m": round(ate, 4), "worst_session_m": round(max(per.values()), 4), "frames": frames,
+        "task_s": {s["name"]: s.get("task_s") for s in res["sessions"]},
+        "pair_task_s": [c.get("task_s") for c in res["candidates"]],
+    }
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| N arcs (+ lone) | workers | keyframes | pairs verified / all | components | tracking s | "
+            "overlap search s | verify s | merge s | total s | ATE one SE(3) m (worst session) |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        lines.append(
+            f"| {r['arcs']} (+1) | {r['workers']} | {r['keyframes']} | {r['candidate_pairs']} / {r['all_pairs']} | "
+            f"{' + '.join(map(str, r['components']))} | {r['tracking_s']} | {r['search_s']} | {r['verify_s']} | "
+            f"{r['merge_s']} | {r['total_s']} | {r['ate_m']} ({r['worst_session_m']}) |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16, 32])
+    p.add_argument("--frames", type=int, default=50, help="frames per session")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--sequential", type=int, default=0, help="also map this many arcs with --workers 1")
+    args = p.parse_args(argv)
+    from vslam.datasets.synthetic.fleet import render_fleet
+
+    fleet = args.output / "fleet"
+    t0 = time.perf_counter()
+    render_fleet(fleet, max(args.sizes + [args.sequential]), args.frames)
+    print(f"fleet rendered in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    rows = []
+    runs = [(n, args.workers) for n in args.sizes] + ([(args.sequential, 1)] if args.sequential else [])
+    for n, w in runs:
+        rows.append(map_fleet(fleet, n, args.output / f"map_{n}_w{w}", w))
+        print(json.dumps({k: v for k, v in rows[-1].items() if not k.endswith("task_s")}), file=sys.stderr)
+        (args.output / "results.json").write_text(json.dumps(rows, indent=1))
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
