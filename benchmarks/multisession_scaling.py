@@ -23,33 +23,19 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 
 def fleet_ate(out: Path, fleet: Path, component: int = 0) -> tuple[float, dict[str, float], int]:
     """RMSE over every frame of every session of ``component`` after ONE SE(3) alignment of them all
     to the fleet's ground truth (``fleet/<name>/groundtruth.txt``, the room's frame); the
-    per-session RMSE under that alignment; the number of frames."""
-    from vslam.eval.metrics import align
+    per-session RMSE under that alignment; the number of frames (:func:`vslam.eval.joint.joint_ate`)."""
+    from vslam.eval.joint import joint_ate
     from vslam.trajectory import read_tum
 
-    res = json.loads((out / "sessions.json").read_text())
-    est, ref, names = [], [], []
-    for s in res["sessions"]:
-        if s.get("component") != component:
-            continue
-        t, gt = read_tum(s["trajectory"]), read_tum(fleet / s["name"] / "groundtruth.txt")
-        idx = np.clip(np.searchsorted(gt.timestamps, t.timestamps - 1e-4), 0, len(gt.timestamps) - 1)
-        assert np.allclose(gt.timestamps[idx], t.timestamps, atol=1e-4), s["name"]
-        est.append(t.T_world_cam)
-        ref.append(gt.T_world_cam[idx])
-        names += [s["name"]] * len(idx)
-    E, G = np.concatenate(est), np.concatenate(ref)
-    a = align(E, G, "se3")
-    err = np.linalg.norm(E[:, :3, 3] @ (a.s * a.R).T + a.t - G[:, :3, 3], axis=1)
-    who = np.array(names)
-    per = {n: float(np.sqrt(np.mean(err[who == n] ** 2))) for n in dict.fromkeys(names)}
-    return float(np.sqrt(np.mean(err ** 2))), per, len(err)
+    comp = [s for s in json.loads((out / "sessions.json").read_text())["sessions"] if s.get("component") == component]
+    j = joint_ate({s["name"]: read_tum(s["trajectory"]) for s in comp},
+                  {s["name"]: read_tum(fleet / s["name"] / "groundtruth.txt") for s in comp})
+    return j.rmse, j.per_name, j.frames
 
 
 def write_spec(fleet: Path, n: int, lone: bool = True) -> Path:

@@ -32,25 +32,13 @@ def _one_alignment_ate(result: dict, data: Path, component: int = 0) -> tuple[fl
     """RMSE over every frame of every session of ``component`` after ONE SE(3) alignment to ground
     truth; the per-session RMSE under that same alignment; the number of frames."""
     from vslam.datasets import open_dataset
-    from vslam.eval.metrics import align
+    from vslam.eval.joint import joint_ate
     from vslam.trajectory import read_tum
 
     gt = open_dataset(data, sensor="rgbd").ground_truth()
-    est, ref, names = [], [], []
-    for s in result["sessions"]:
-        if s.get("component") == component:
-            t = read_tum(s["trajectory"])
-            idx = np.searchsorted(gt.timestamps, t.timestamps - 1e-4)
-            assert np.allclose(gt.timestamps[idx], t.timestamps, atol=1e-4)
-            est.append(t.T_world_cam)
-            ref.append(gt.T_world_cam[idx])
-            names += [s["name"]] * len(t.timestamps)
-    E, G = np.concatenate(est), np.concatenate(ref)
-    a = align(E, G, "se3")
-    err = np.linalg.norm(E[:, :3, 3] @ (a.s * a.R).T + a.t - G[:, :3, 3], axis=1)
-    names_arr = np.array(names)
-    per = {n: float(np.sqrt(np.mean(err[names_arr == n] ** 2))) for n in dict.fromkeys(names)}
-    return float(np.sqrt(np.mean(err ** 2))), per, len(err)
+    comp = [s for s in result["sessions"] if s.get("component") == component]
+    j = joint_ate({s["name"]: read_tum(s["trajectory"]) for s in comp}, {s["name"]: gt for s in comp})
+    return j.rmse, j.per_name, j.frames
 
 
 @pytest.fixture(scope="module")

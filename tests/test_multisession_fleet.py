@@ -17,7 +17,6 @@ import pytest
 
 from vslam.cli import main
 from vslam.datasets.synthetic.fleet import LONE, fleet_sessions, render_fleet
-from vslam.eval.metrics import align
 from vslam.trajectory import read_tum
 
 ARCS = ["s00", "s01", "s02", "s03"]
@@ -26,21 +25,12 @@ ARCS = ["s00", "s01", "s02", "s03"]
 def _one_alignment_ate(result: dict, fleet: Path) -> tuple[float, dict[str, float], int]:
     """RMSE over every frame of component 0 after ONE SE(3) alignment to the fleet's ground truth
     (the room's frame); per-session RMSE under that alignment; number of frames."""
-    est, ref, names = [], [], []
-    for s in result["sessions"]:
-        if s.get("component") == 0:
-            t, gt = read_tum(s["trajectory"]), read_tum(fleet / s["name"] / "groundtruth.txt")
-            idx = np.clip(np.searchsorted(gt.timestamps, t.timestamps - 1e-4), 0, len(gt.timestamps) - 1)
-            assert np.allclose(gt.timestamps[idx], t.timestamps, atol=1e-4)
-            est.append(t.T_world_cam)
-            ref.append(gt.T_world_cam[idx])
-            names += [s["name"]] * len(idx)
-    E, G = np.concatenate(est), np.concatenate(ref)
-    a = align(E, G, "se3")
-    err = np.linalg.norm(E[:, :3, 3] @ (a.s * a.R).T + a.t - G[:, :3, 3], axis=1)
-    who = np.array(names)
-    per = {n: float(np.sqrt(np.mean(err[who == n] ** 2))) for n in dict.fromkeys(names)}
-    return float(np.sqrt(np.mean(err ** 2))), per, len(err)
+    from vslam.eval.joint import joint_ate
+
+    comp = [s for s in result["sessions"] if s.get("component") == 0]
+    j = joint_ate({s["name"]: read_tum(s["trajectory"]) for s in comp},
+                  {s["name"]: read_tum(fleet / s["name"] / "groundtruth.txt") for s in comp})
+    return j.rmse, j.per_name, j.frames
 
 
 @pytest.fixture(scope="module")
