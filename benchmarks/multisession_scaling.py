@@ -4,11 +4,11 @@ Renders the synthetic fleet once (:mod:`vslam.datasets.synthetic.fleet`: arcs ``
 room loop, consecutive arcs overlapping, plus ``lone`` which overlaps nothing), then maps fleets of
 ``N`` arcs + ``lone`` with ``vslam map`` (local executor, ``--workers W``, a fresh output folder
 each) and reads ``sessions.json``: the wall time of the tracking, of the overlap search (one
-bag-of-words index, every keyframe queried once), of the pair verification and of the merge stage
-(tree merges + global BA + outputs), the candidate pairs verified against all ``N (N - 1) / 2``
-pairs, the components, and the ATE over every frame of the largest component after ONE SE(3)
-alignment to the fleet's ground truth. With ``--sequential N``, the ``N``-arc fleet is mapped again
-with ``--workers 1`` for the parallel speed-up.
+bag-of-words index, every keyframe queried once), of the pair verification, of the merge stage (the
+parallel rounds of tree merges) and of the pose graph + global BA + outputs, the candidate pairs
+verified against all ``N (N - 1) / 2`` pairs, the components, and the ATE over every frame of the
+largest component after ONE SE(3) alignment to the fleet's ground truth. With ``--sequential N``, the ``N``-arc fleet is mapped again
+with ``--workers 1`` for the parallel speed-up (``--executor ray``: on a local Ray of that many CPUs).
 
     python benchmarks/multisession_scaling.py -o /tmp/msbench --sizes 2 4 8 16 32 --sequential 16
 
@@ -48,13 +48,13 @@ def write_spec(fleet: Path, n: int, lone: bool = True) -> Path:
     return path
 
 
-def map_fleet(fleet: Path, n: int, out: Path, workers: int) -> dict:
+def map_fleet(fleet: Path, n: int, out: Path, workers: int, executor: str = "local") -> dict:
     """One ``vslam map`` of the ``n``-arc fleet into ``out`` (a fresh folder); its figures."""
     import shutil
 
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "vslam", "map", str(write_spec(fleet, n)), "-o", str(out),
-           "--workers", str(workers)]
+           "--workers", str(workers), "--executor", executor, "--no-report"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -68,8 +68,12 @@ def map_fleet(fleet: Path, n: int, out: Path, workers: int) -> dict:
         "queries": idx["queries"], "candidate_pairs": idx["candidate_pairs"], "all_pairs": idx["all_pairs"],
         "verified": len(res["overlaps"]), "components": [len(c) for c in res["components"]],
         "lone_apart": ["lone"] in res["components"],
-        "tracking_s": tm["sessions_s"], "search_s": tm["overlap_search_s"], "index_s": idx.get("search_s"),
-        "verify_s": tm["verify_s"], "merge_s": tm["merge_s"], "total_s": tm["total_s"], "wall_s": round(wall, 1),
+        "executor": res["executor"], "tracking_s": tm["sessions_s"], "search_s": tm["overlap_search_s"],
+        "index_s": idx.get("search_s"), "verify_s": tm["verify_s"], "merge_s": tm["merge_s"],
+        "finalize_s": tm["finalize_s"], "total_s": tm["total_s"], "wall_s": round(wall, 1),
+        "merge_rounds": [[r["pairs"], r["wall_s"], [m.get("task_s") for m in r["merges"]]]
+                         for r in res["merge_rounds"]],
+        "pose_graph": res["component_maps"][0].get("pose_graph"),
         "ate_m": round(ate, 4), "worst_session_m": round(max(per.values()), 4), "frames": frames,
         "task_s": {s["name"]: s.get("task_s") for s in res["sessions"]},
         "pair_task_s": [c.get("task_s") for c in res["candidates"]],
@@ -78,13 +82,15 @@ def map_fleet(fleet: Path, n: int, out: Path, workers: int) -> dict:
 
 def table(rows: list[dict]) -> str:
     head = ("| N arcs (+ lone) | workers | keyframes | pairs verified / all | components | tracking s | "
-            "overlap search s | verify s | merge s | total s | ATE one SE(3) m (worst session) |")
+            "overlap search s | verify s | merge s (rounds) | pose graph + global BA s | total s | "
+            "ATE one SE(3) m (worst session) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
             f"| {r['arcs']} (+1) | {r['workers']} | {r['keyframes']} | {r['candidate_pairs']} / {r['all_pairs']} | "
             f"{' + '.join(map(str, r['components']))} | {r['tracking_s']} | {r['search_s']} | {r['verify_s']} | "
-            f"{r['merge_s']} | {r['total_s']} | {r['ate_m']} ({r['worst_session_m']}) |")
+            f"{r['merge_s']} ({len(r['merge_rounds'])}) | {r['finalize_s']} | {r['total_s']} | "
+            f"{r['ate_m']} ({r['worst_session_m']}) |")
     return "\n".join(lines)
 
 
@@ -95,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=50, help="frames per session")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--sequential", type=int, default=0, help="also map this many arcs with --workers 1")
+    p.add_argument("--executor", choices=("local", "ray"), default="local")
     args = p.parse_args(argv)
     from vslam.datasets.synthetic.fleet import render_fleet
 
@@ -105,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     runs = [(n, args.workers) for n in args.sizes] + ([(args.sequential, 1)] if args.sequential else [])
     for n, w in runs:
-        rows.append(map_fleet(fleet, n, args.output / f"map_{n}_w{w}", w))
+        rows.append(map_fleet(fleet, n, args.output / f"map_{n}_w{w}", w, args.executor))
         print(json.dumps({k: v for k, v in rows[-1].items() if not k.endswith("task_s")}), file=sys.stderr)
         (args.output / "results.json").write_text(json.dumps(rows, indent=1))
     print(table(rows))

@@ -13,17 +13,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Track every session (recordings, or one YAML file with `sessions: [{name, data, sensor, camera, "
                     "start_frame, max_frames}]`) as its own task into OUT/sessions/<name>/ (a finished one is "
                     "reused), find overlapping sessions through one bag-of-words index over all their keyframes, "
-                    "verify the candidate pairs geometrically (one task each), and merge each connected component "
-                    "along the spanning tree of its strongest overlaps. Writes OUT/map/ (largest component; others in "
+                    "verify the candidate pairs geometrically (one task each), merge each connected component "
+                    "pairwise up the spanning tree of its strongest overlaps (parallel rounds, one task per merge), "
+                    "then optimize it once (a pose graph over every verified overlap, a global BA). "
+                    "Writes OUT/map/ (largest component; others in "
                     "OUT/components/<i>/), OUT/trajectories/<name>.txt (TUM, in the component's common frame), "
-                    "OUT/sparse.ply and OUT/sessions.json (sessions, overlaps, components).",
+                    "OUT/sparse.ply, OUT/sessions.json (sessions, overlaps, components) and OUT/report.html.",
     )
     p.add_argument("inputs", nargs="+", metavar="INPUT",
                    help="a recording (any path `vslam run` reads) or one sessions YAML")
     p.add_argument("--output", "-o", help="output folder (default with --map: that folder)")
     p.add_argument("--map", dest="map_dir", metavar="OUT",
-                   help="add INPUTS to an earlier `vslam map` result: its sessions are reused (not tracked "
-                        "again), the new ones tracked, then overlaps and merges are redone over all of them")
+                   help="add INPUTS to an earlier `vslam map` result: its components are kept (not tracked, "
+                        "searched or merged again); only the new recordings are tracked, their overlaps searched "
+                        "and verified, and they are merged into the existing maps")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool (default) or Ray tasks")
     p.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
@@ -31,6 +34,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                                                "default: CPU count; 0: local, in this process)")
     p.add_argument("--sensor", choices=("mono", "stereo", "rgbd"), help="sensor of sessions that do not name one")
     p.add_argument("--candidates", type=int, default=3, help="candidate partners verified per session (default 3)")
+    p.add_argument("--no-pose-graph", action="store_true",
+                   help="skip the pose graph over every verified overlap after the tree merge (the global BA "
+                        "still runs); for comparison")
+    p.add_argument("--no-report", action="store_true", help="do not write OUT/report.html")
     p.add_argument("--config", help="YAML file with settings for every session")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting for every session (repeatable)")
@@ -59,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("the output folder is missing: -o OUT (or --map OUT to add to an earlier result)")
     result = map_sessions(inputs, args.output, executor=args.executor, workers=args.workers,
                           address=args.address, config=args.config, overrides=tuple(args.overrides),
-                          sensor=args.sensor, candidates=args.candidates,
+                          sensor=args.sensor, candidates=args.candidates, pose_graph=not args.no_pose_graph,
+                          incremental=bool(args.map_dir),
                           on_progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     failed = [s for s in result["sessions"] if s["status"] != "ok"]
     comps = result["components"]
@@ -69,5 +77,16 @@ def run(args: argparse.Namespace) -> int:
           + "; ".join(", ".join(c) for c in comps))
     for s in failed:
         print(f"session {s['name']} failed: {s['error']}")
+    for i, c in enumerate(result["component_maps"]):
+        if c.get("error"):
+            print(f"component {i} ({', '.join(c['sessions'])}): its map and trajectories failed: {c['error']}")
+    if not args.no_report:
+        from vslam.report.multisession import write_multisession_report
+
+        try:  # a page never fails a finished map
+            print(f"report: {write_multisession_report(args.output)}")
+        except Exception as exc:  # noqa: BLE001
+            print(f"report.html not written ({type(exc).__name__}: {exc}); `vslam report {args.output} -o PAGE.html` "
+                  "retries", file=sys.stderr)
     print(f"results in {args.output} ({result['timing']['total_s']:.1f} s)")
     return 0 if comps else 1  # no session mapped: nothing to merge

@@ -24,8 +24,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from vslam.report.html import write_report
 
+    if (Path(args.folder) / "sessions.json").is_file():  # a `vslam map` output folder (issue #26)
+        from vslam.report.multisession import write_multisession_report
+
+        print(f"report: {write_multisession_report(args.folder, args.output)}")
+        return 0
     path = write_report(args.folder, args.output, run_reports=not args.no_run_reports, gt=args.gt)
     print(f"report: {path}")
     return 0

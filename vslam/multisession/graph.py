@@ -46,20 +46,3 @@ def spanning_tree(names: list[str], edges: list[dict]) -> list[dict]:
         if e["a"] in forest.parent and e["b"] in forest.parent and forest.union(e["a"], e["b"]):
             tree.append(e)
     return tree
-
-
-def merge_order(root: str, tree: list[dict]) -> list[tuple[str, str]]:
-    """``[(parent, child), ...]`` in breadth-first order from ``root`` along the tree's edges."""
-    adj: dict[str, list[tuple[int, str]]] = {}
-    for e in tree:
-        adj.setdefault(e["a"], []).append((-e["inliers"], e["b"]))
-        adj.setdefault(e["b"], []).append((-e["inliers"], e["a"]))
-    order, seen, queue = [], {root}, [root]
-    while queue:
-        node = queue.pop(0)
-        for _, nxt in sorted(adj.get(node, [])):
-            if nxt not in seen:
-                seen.add(nxt)
-                order.append((node, nxt))
-                queue.append(nxt)
-    return order

@@ -1,21 +1,35 @@
 """Which sessions overlap, found without trying every pair (step 2 of :mod:`vslam.multisession`).
 
-1. **One inverted index** (:class:`vslam.map.database.KeyframeDatabase`) holds the bag-of-words
-   vector of every keyframe of every session (read from each run's saved ``map/database.npz``; no
-   map is loaded); rows are numbered session after session (``owner[row]`` is the session).
-2. **Queries.** Each keyframe queries the index once (the inverted index scores only keyframes
-   sharing a word; the chance level below reads one dense row per query, O(all keyframes)).
-   Per other compatible session (same sensor, same camera), its best raw L1 score minus the
-   query's chance level (the median raw score over the other sessions' keyframes, so a scene's
-   texture does not vote) is the query's evidence for that pair; its evidence for its best
-   session is added to the pair's score (symmetrized over both directions). Each session keeps
-   its ``candidates`` best-scoring partners: at most ``N * candidates`` pairs are verified, never
-   ``N (N - 1) / 2``.
+1. **One inverted index** (:class:`PostingIndex`, :func:`build_index`) over the bag-of-words vector
+   of every keyframe of every session (read from each run's saved ``map/database.npz``; no map is
+   loaded): one posting list per word (the keyframes holding it, with their weights); rows are
+   numbered session after session (``owner[row]`` is the session).
+2. **Queries** (:func:`candidate_pairs`). Each keyframe queries the index once (:func:`raw_scores`):
+   only the posting lists of its own words are visited, and of those only the shortest ones (the
+   words most distinctive in this index) up to ``budget`` entries in all, so one query's work is
+   bounded whatever the number of sessions. (The embedded 10^4-word vocabulary puts ~1550 words in
+   a keyframe and each word in ~40 % of the keyframes: a query over all its words visits ~0.4 x
+   1550 x K entries, 110 k at K = 264 keyframes, i.e. K^2 over all queries.) Everything after works
+   on the hits alone: the query's chance level is the median score over the other compatible
+   sessions' keyframes (same sensor and camera; those sharing none of the words count as 0, so the
+   median is taken from the hits by rank, :func:`median_with_zeros`), so a scene's texture does not
+   vote; the ``top_k`` best other sessions among the hits (by their best keyframe) each get their
+   best score minus the chance level as the query's evidence for that pair (symmetrized over both
+   directions). Each session keeps its ``candidates`` best-scoring partners: at most
+   ``N * candidates`` pairs are verified, never ``N (N - 1) / 2``. With ``new`` (``vslam map
+   --map``) only the new sessions' keyframes query, and only pairs with a new session are
+   candidates.
 3. **Verification** (:func:`verify_pair`, one task per candidate pair) is :func:`vslam.merge.merge_maps`'s
    place recognition and acceptance (the 16 keyframes of the smaller map that best match the
    larger by BoW, each verified against its candidates there; the agreeing group; the transform
    over all their seam correspondences), without append or BA: an overlap is an edge with its
-   inliers and ``S_a_b`` (SE(3); Sim(3) monocular). The merge itself searches the whole seam again.
+   inliers, ``S_a_b`` (SE(3); Sim(3) monocular) and its ``seam`` (``[a_kf, b_kf, inliers]`` of the
+   agreeing keyframes, the pose-graph constraints of :mod:`vslam.multisession.global_opt`).
+
+Measured (benchmarks/RESULTS.md, issue #26): the budget of 4096 entries, on the 32-arc fleet,
+keeps every true overlap chain connected and puts more true overlaps among the candidates than the
+full score (42 of 57 vs 36 of 54: the rare words are the distinctive ones); the search grows
+linearly in the keyframes (K log K for the hits' sort) where the full score grew as K^2.
 """
 from __future__ import annotations
 
@@ -53,10 +67,109 @@ def _read_session(name: str, folder: Path):
     return SessionIndexEntry(name, folder, sensor, key, db.keyframe_ids), db
 
 
-def candidate_pairs(folders: dict[str, Path], candidates: int = 3) -> tuple[list[dict], dict]:
-    """The candidate session pairs (``[{a, b, score}]``, best first) and the search's statistics."""
-    from vslam.map.database import KeyframeDatabase
+def median_with_zeros(values: np.ndarray, n_total: int) -> float:
+    """``np.median`` of ``values`` padded with ``n_total - len(values)`` zeros (the keyframes a query
+    shares no word with), from the non-negative ``values`` alone: ``O(len(values))``.
 
+    >>> median_with_zeros(np.array([0.3, 0.1, 0.2]), 4), float(np.median([0.3, 0.1, 0.2, 0.0]))
+    (0.15, 0.15)
+    """
+    zeros = n_total - values.size
+    if n_total <= 0:
+        return 0.0
+    ranks = [(n_total - 1) // 2, n_total // 2]  # the middle one (odd) or two (even) of the sorted padded row
+    picked = []
+    need = sorted({r - zeros for r in ranks if r >= zeros})
+    part = np.partition(values, need) if need else values
+    for r in ranks:
+        picked.append(0.0 if r < zeros else float(part[r - zeros]))
+    return 0.5 * (picked[0] + picked[1])
+
+
+@dataclass
+class PostingIndex:
+    """The inverted index of every session's keyframes: CSC arrays of the ``(keyframes, words)``
+    BoW matrix (``indptr[w]:indptr[w + 1]`` is word ``w``'s posting list: ``rows`` and ``values``),
+    ``owner[row]`` the session of each row."""
+
+    indptr: np.ndarray
+    rows: np.ndarray
+    values: np.ndarray
+    owner: np.ndarray
+
+
+def build_index(dbs: list) -> PostingIndex:
+    """One inverted index over the keyframes of every session's database, rows numbered session
+    after session."""
+    import scipy.sparse as sp
+
+    bows = [db.bow(k) for db in dbs for k in db.keyframe_ids]
+    owner = np.repeat(np.arange(len(dbs)), [len(db.keyframe_ids) for db in dbs]).astype(np.int64)
+    lengths = np.array([len(b) for b in bows], np.int64)
+    rows = np.repeat(np.arange(len(bows)), lengths)
+    cols = np.concatenate([b.words for b in bows]) if bows else np.zeros(0, np.int64)
+    vals = np.concatenate([b.values for b in bows]) if bows else np.zeros(0)
+    csc = sp.csc_matrix((vals, (rows, cols)), shape=(len(bows), dbs[0].n_words))
+    csc.sort_indices()
+    return PostingIndex(csc.indptr.astype(np.int64), csc.indices.astype(np.int64), csc.data, owner)
+
+
+def raw_scores(index: PostingIndex, bow, budget: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, scores)``: the L1 score ``sum_w min(q_w, d_w)`` (Galvez-Lopez & Tardos 2012, eq. 3, as
+    :meth:`KeyframeDatabase.raw_scores`) of every keyframe sharing a word with the query, summed over
+    the query's words with the shortest posting lists (the most distinctive in this index, its idf)
+    up to ``budget`` posting entries in all (at least one word): a query's work is bounded, whatever
+    the index's size. With every word under the budget it is the full score."""
+    w = np.asarray(bow.words, np.int64)
+    if w.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    df = index.indptr[w + 1] - index.indptr[w]
+    order = np.argsort(df, kind="stable")
+    take = order[: max(1, int(np.searchsorted(np.cumsum(df[order]), budget, side="right")))]
+    w, q, lens = w[take], np.asarray(bow.values)[take], df[take]
+    total = int(lens.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    # every (posting entry, query weight) of the chosen words, flattened without a Python loop
+    starts = np.repeat(index.indptr[w] - np.concatenate(([0], np.cumsum(lens)[:-1])), lens)
+    at = starts + np.arange(total)
+    hits, inv = np.unique(index.rows[at], return_inverse=True)
+    return hits, np.bincount(inv, weights=np.minimum(np.repeat(q, lens), index.values[at]))
+
+
+def query_evidence(index: PostingIndex, bow, others: np.ndarray, n_others: int, top_k: int = 1,
+                   budget: int = 4096) -> list[tuple[int, float]]:
+    """One keyframe's evidence: ``[(session, best raw score - chance level)]`` for the ``top_k``
+    other sessions (``others[j]`` True: compatible, not the query's own) whose best keyframe scores
+    highest, when above the chance level (the median over the ``n_others`` keyframes of those
+    sessions); only the index's hits are touched."""
+    ids, raw = raw_scores(index, bow, budget)
+    owner = index.owner
+    keep = others[owner[ids]]
+    ids, raw = ids[keep], raw[keep]
+    if raw.size == 0:
+        return []
+    chance = median_with_zeros(raw, n_others)
+    who = owner[ids]
+    if top_k == 1:
+        b = int(np.argmax(raw))
+        return [(int(who[b]), float(raw[b]) - chance)] if raw[b] > chance else []
+    order = np.argsort(-raw, kind="stable")
+    out, seen = [], set()
+    for r in order:
+        if raw[r] <= chance or len(out) == top_k:
+            break
+        j = int(who[r])
+        if j not in seen:
+            seen.add(j)
+            out.append((j, float(raw[r]) - chance))
+    return out
+
+
+def candidate_pairs(folders: dict[str, Path], candidates: int = 3, new: set[str] | None = None,
+                    top_k: int = 1, budget: int = 4096) -> tuple[list[dict], dict]:
+    """The candidate session pairs (``[{a, b, score}]``, best first) and the search's statistics;
+    ``new``: only these sessions query, only pairs with one of them are candidates (module docstring)."""
     t0 = time.perf_counter()
     entries, dbs = [], []
     for name, folder in folders.items():
@@ -64,47 +177,37 @@ def candidate_pairs(folders: dict[str, Path], candidates: int = 3) -> tuple[list
         entries.append(e)
         dbs.append(db)
     n = len(entries)
-    stats = {"sessions": n, "keyframes": 0, "queries": 0, "all_pairs": n * (n - 1) // 2}
-    if n < 2:
-        return [], {**stats, "candidate_pairs": 0, "search_s": 0.0}
-    index = KeyframeDatabase(dbs[0].n_words)
-    owner: list[int] = []
-    for i, db in enumerate(dbs):
-        for k in db.keyframe_ids:
-            index.add(len(owner), db.bow(k))
-            owner.append(i)
-    owner_arr = np.asarray(owner, np.int64)
+    is_new = np.array([new is None or e.name in new for e in entries], bool)
+    all_pairs = n * (n - 1) // 2 - (0 if new is None else int((~is_new).sum() * ((~is_new).sum() - 1) // 2))
+    stats = {"sessions": n, "keyframes": 0, "queries": 0, "all_pairs": all_pairs}
+    if n < 2 or not is_new.any():
+        return [], {**stats, "candidate_pairs": 0, "search_s": 0.0, "read_s": 0.0}
+    t_read = time.perf_counter() - t0
+    index = build_index(dbs)
+    owner = index.owner
+    stats["keyframes"] = len(owner)
+    sizes = np.bincount(owner, minlength=n)
     compatible = np.array([[a.sensor == b.sensor and a.camera == b.camera for b in entries] for a in entries])
     score = np.zeros((n, n))
-    full = np.zeros(len(owner))
     for i, db in enumerate(dbs):
         others = compatible[i].copy()
         others[i] = False
-        kf_mask = others[owner_arr]
-        if not kf_mask.any():
+        if not is_new[i] or not others.any():
             continue
+        n_others = int(sizes[others].sum())
         for k in db.keyframe_ids:
-            ids, raw, _ = index.raw_scores(db.bow(k), count_common=False)
             stats["queries"] += 1
-            full[:] = 0.0
-            full[ids] = raw
-            chance = float(np.median(full[kf_mask]))  # the query's chance level over the other sessions
-            best = np.zeros(n)
-            np.maximum.at(best, owner_arr[kf_mask], full[kf_mask])
-            excess = np.where(others, best - chance, -np.inf)
-            j = int(np.argmax(excess))
-            if excess[j] > 0:
-                score[i, j] += excess[j]
-    stats["keyframes"] = len(owner)
+            for j, ev in query_evidence(index, db.bow(k), others, n_others, top_k, budget):
+                score[i, j] += ev
     sym = score + score.T
     pairs: dict[tuple[int, int], float] = {}
     for i in range(n):
         for j in np.argsort(-sym[i], kind="stable")[:candidates]:
-            if j != i and sym[i, j] > 0:
+            if j != i and sym[i, j] > 0 and (is_new[i] or is_new[j]):
                 pairs[(min(i, j), max(i, j))] = float(sym[i, j])
     out = [{"a": entries[i].name, "b": entries[j].name, "score": round(s, 4)}
            for (i, j), s in sorted(pairs.items(), key=lambda p: (-p[1], p[0]))]
-    stats.update(candidate_pairs=len(out), search_s=round(time.perf_counter() - t0, 3))
+    stats.update(candidate_pairs=len(out), search_s=round(time.perf_counter() - t0, 3), read_s=round(t_read, 3))
     return out, stats
 
 
@@ -147,6 +250,7 @@ def verify_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, max_keyframe
             "residual": round(alignment["residual"], 6), "seam_keyframes": len(group),
             "queried_keyframes": len(sub_b.keyframes), "scale": round(float(np.cbrt(np.linalg.det(S[:3, :3]))), 6),
             "transform": "Sim(3)" if sensor == "mono" else "SE(3)",
+            "seam": [[int(m.a_kf), int(m.b_kf), int(m.ver.n_inliers)] for m in group],
             "S_a_b": [[round(float(x), 6) for x in row] for row in S]}
 
 
