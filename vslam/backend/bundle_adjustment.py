@@ -66,6 +66,9 @@ def _observations(problem: BAProblem, config: LocalBAConfig) -> schur_lm.Observa
     info = 1.0 / problem.obs_sigma**2
     # sigma of the disparity residual: disparity_sigma_scale * sigma (None: the same as u and v)
     info_d = None if config.disparity_sigma_scale == 1.0 else np.where(disparity, info / config.disparity_sigma_scale**2, info)
+    if config.rgbd_disparity_sigma_px > 0:  # the z^2 depth-noise law: a constant disparity std (config)
+        info_d = info.copy() if info_d is None else info_d
+        info_d[has_d & disparity] = 1.0 / config.rgbd_disparity_sigma_px**2
     return schur_lm.Observations(
         cam=problem.kf_index(problem.obs_kf), pt=problem.pt_index(problem.obs_pt), meas=meas,
         baseline=baseline, stereo=stereo, info=info, disparity=disparity, info_d=info_d,

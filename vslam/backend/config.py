@@ -60,6 +60,10 @@ class LocalBAConfig:
     # x 3000 points (benchmarks/backend_bench.py problem): free-pose error u_right 8.09, disparity 6.57, 0.5:
     # 5.59 mm.
     disparity_sigma_scale: float = param(math.sqrt(2.0), "std of the disparity residual in units of the keypoint's sigma (disparity residuals only)", bounds="(0, 1000]")
+    # issue #24 candidate (0 = off while measured): a depth sensor's depth error grows with z^2 (Kinect sigma_z ~
+    # 1.4e-3 z^2 m, Khoshelham & Elberink 2012), i.e. its disparity fx b / z has a constant error, independent of
+    # the keypoint's octave; this sigma replaces disparity_sigma_scale * sigma_octave for RGB-D disparity residuals.
+    rgbd_disparity_sigma_px: float = param(0.0, "RGB-D disparity residuals: a constant disparity std in pixels (the z^2 depth-noise law), whatever the keypoint's octave (0: off, disparity_sigma_scale times its sigma)", bounds="[0, 1000]")
     solver: str = param("schur", "schur (vectorized NumPy/SciPy LM on the reduced camera system) or gtsam (the reference)")
     lambda_initial: float = param(1e-4, "initial LM damping (Marquardt scaling of the Hessian diagonal)", bounds="(0, 1e10]")
     relative_tolerance: float = param(1e-4, "stop a pass when an iteration's relative cost decrease falls below this", bounds="[0, 1]")
@@ -78,6 +82,8 @@ class LocalBAConfig:
             )
         if self.window_size < 2:
             raise ConfigError(f"local BA window_size must be >= 2, got {self.window_size}")
+        if self.rgbd_disparity_sigma_px < 0:
+            raise ConfigError(f"backend rgbd_disparity_sigma_px must be >= 0, got {self.rgbd_disparity_sigma_px}")
         for name in ("huber_mono", "huber_stereo", "chi2_mono", "chi2_stereo", "rgbd_virtual_baseline", "lambda_initial",
                      "disparity_sigma_scale"):
             if not getattr(self, name) > 0:
@@ -151,6 +157,10 @@ class MonoBAConfig:
     # segment drifted 2.6x in scale (docs/architecture.md). 2 px: KITTI 07 0.348, 4 px: 0.326.
     retriangulate_max_reproj_px: float = param(4.0, "a re-triangulated point moves only if it reprojects within this many pixels in both keyframes", bounds="(0, 1000]")
     retriangulate_min_parallax_deg: float = param(1.0, "... and is seen with at least this parallax, degrees (else it keeps its position)", bounds="[0, 180]")
+    # issue #24 candidate (0 = off while measured): ORB-SLAM's local BA takes every covisible keyframe, so its
+    # monocular window is wider than the stereo/RGB-D one here. Measured with local.window_size=15 (the same
+    # monocular runs): one 7-Scenes mono start of five fails (0.348 m), benchmarks/RESULTS.md (issue #24).
+    window_size: int = param(0, "monocular local BA: the most recent keyframes optimized (0: local.window_size)", bounds="[0, 10000]")
 
     def __post_init__(self) -> None:
         if self.min_observations < 2:

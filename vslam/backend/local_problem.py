@@ -98,7 +98,8 @@ class LocalProblemBuilder:
         seg = segment_keyframes(self.map, kf.segment)
         good = {k.id for k in seg}
         first = min(good)
-        recent = sorted(good)[-cfg.local.window_size:]
+        size = cfg.mono.window_size if (self.sensor == "mono" and cfg.mono.window_size) else cfg.local.window_size
+        recent = sorted(good)[-size:]
         cov = [k for k in self.map.covisible(kf.id) if k in good][: cfg.covisible_keyframes]
         window = sorted(set(recent) | set(cov) | {kf.id})
         # constant: covisible keyframes outside the window (they observe window points), strongest first

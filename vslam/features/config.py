@@ -38,10 +38,21 @@ class FeatureConfig:
     brisk_threshold: int = param(20, "BRISK AGAST threshold")
     gftt_quality: float = param(0.001, "Shi-Tomasi quality level (gftt_orb)")
     gftt_min_distance: float = param(8.0, "minimum distance between Shi-Tomasi corners in pixels (gftt_orb)")
+    # issue #24 candidate (off while measured): cornersubpix keeps cv2.cornerSubPix's shift only within half a pixel
+    # of the FAST corner (a FAST corner is not always a gradient-orthogonal corner); parabola interpolates the
+    # Shi-Tomasi response's peak around it (at most half a pixel by construction).
+    subpixel: str = param("off", "ORB: refine each FAST corner to sub-pixel accuracy on its pyramid level: off, cornersubpix (cv2.cornerSubPix) or parabola (peak of the Shi-Tomasi response, a parabola per axis)")
+    subpixel_window: int = param(2, "half side of cornerSubPix's search window, level pixels", bounds="[1, 15]")
+    subpixel_min_octave: int = param(0, "only keypoints of pyramid levels from this one up are refined (0: every level)", bounds="[0, 31]")
+    subpixel_max_octave: int = param(31, "only keypoints of pyramid levels up to this one are refined (0: the full-resolution level only)", bounds="[0, 31]")
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
             raise ConfigError(f"features.detector={self.detector!r} is unknown; use one of {DETECTORS}")
+        if str(self.subpixel).lower() == "false":  # YAML reads an unquoted `off` (or `false`) as a boolean
+            object.__setattr__(self, "subpixel", "off")
+        if self.subpixel not in ("off", "cornersubpix", "parabola"):
+            raise ConfigError(f"features.subpixel={self.subpixel!r} must be off, cornersubpix or parabola")
         if self.n_features < 1:
             raise ConfigError(f"features.n_features={self.n_features} must be >= 1")
         if not self.scale_factor > 1.0:

@@ -28,6 +28,7 @@ from vslam.features.config import FeatureConfig
 from vslam.features.keypoints import Features
 from vslam.features.orb_describe import Orientation, RotatedBrief, describe_orb, responses
 from vslam.features.pyramid import build_pyramid, check_gray, grid_select, level_quotas
+from vslam.features.subpixel import subpixel_corners, subpixel_peaks
 
 __all__ = [
     "Detector", "Features", "GfttOrbDetector", "OpenCVDetector", "OrbGridDetector", "build_pyramid",
@@ -178,6 +179,15 @@ class OrbGridDetector:
             out.append((x[keep], y[keep], score[keep]))
         return out
 
+    def _subpixel(self, img: np.ndarray, x: np.ndarray, y: np.ndarray, lvl: int) -> tuple[np.ndarray, np.ndarray]:
+        """Level-``lvl`` corner positions: the integer FAST ones, or refined (``features.subpixel``)."""
+        c = self.config
+        if c.subpixel == "off" or not c.subpixel_min_octave <= lvl <= c.subpixel_max_octave:
+            return x, y
+        if c.subpixel == "cornersubpix":
+            return subpixel_corners(img, x, y, c.subpixel_window)
+        return subpixel_peaks(img, x, y)
+
     def detect(self, gray: np.ndarray, mask: np.ndarray | None = None) -> Features:
         c = self.config
         gray = check_gray(gray)
@@ -195,9 +205,10 @@ class OrbGridDetector:
                 x, y, score = x[inside], y[inside], score[inside]
             ang = self.orientation(img, x, y)
             desc = self.brief.describe(self.brief.smooth(img), x, y, ang)
+            xf, yf = self._subpixel(img, x, y, lvl)
             # pixel-centre-correct level-0 position: x0 = (x + 0.5) * W / W_l - 0.5 (a bias of
             # up to (s - 1) / 2 px otherwise, which does not cancel under rotation or zoom)
-            uv = np.stack([(x + 0.5) * (w0 / wl) - 0.5, (y + 0.5) * (h0 / hl) - 0.5], 1)
+            uv = np.stack([(xf + 0.5) * (w0 / wl) - 0.5, (yf + 0.5) * (h0 / hl) - 0.5], 1)
             parts.append((uv, desc, np.full(len(x), lvl, np.int32), score, ang))
         if not parts:
             return Features.empty(True, 32, c.scale_factor)
