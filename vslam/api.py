@@ -198,7 +198,7 @@ def run_path(
     ds, sensor, stop, imu_inputs = _open_run(path, dataset, sensor, imu, map_dir, dense, start_frame, max_frames,
                                              camera, topics)
     truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
-    system = _continue_map(cfg, ds, sensor, map_dir, output, path) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
+    system = _continue_map(cfg, ds, sensor, map_dir, output, path, imu_inputs) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
     viewer, on_frame = open_viewer(viz, system, viz_options) if viz else (None, None)
     try:
@@ -207,7 +207,7 @@ def run_path(
             ground_truth=truth.trajectory, align="sim3" if sensor == "mono" else "se3", progress=progress,
             on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
-                         "start_frame": start_frame, **truth.stats(),
+                         "start_frame": start_frame, **truth.stats(), **_inertial_metadata(imu_inputs),
                          **({"camera": ds.calibration_source} if getattr(ds, "calibration_source", None) else {})},
             inputs=(path,),
         )
@@ -242,9 +242,17 @@ def _split_requested(sensor: str | None, imu, map_dir) -> tuple[str | None, bool
     base, inertial = split_sensor(sensor) if sensor is not None else (None, False)
     if imu is not None and not inertial:
         raise ConfigError(f"--imu is read by the inertial sensors only: add --sensor {' | '.join(INERTIAL_SENSORS)}")
-    if inertial and map_dir is not None:
-        raise ConfigError(f"continuing a map (--map) with --sensor {sensor} is not supported yet; run it as {base}")
     return base, inertial
+
+
+def _inertial_metadata(imu_inputs: dict) -> dict:
+    """``{"inertial": ...}`` for the stats and the saved map's metadata of an inertial run (gravity
+    magnitude, IMU calibration source, ``T_imu_cam``: :func:`vslam.map.io_inertial.inertial_metadata`)."""
+    if not imu_inputs:
+        return {}
+    from vslam.map.io_inertial import inertial_metadata
+
+    return {"inertial": inertial_metadata(imu_inputs["imu_calibration"])}
 
 
 def _imu_inputs(ds, imu) -> dict:
@@ -283,11 +291,14 @@ def open_viewer(viz: str, system, viz_options: dict | None = None):
     return viewer, viewer.bind(system)
 
 
-def _continue_map(cfg, ds, sensor: str, map_dir: str | Path, output: str | Path | None = None, path=None):
+def _continue_map(cfg, ds, sensor: str, map_dir: str | Path, output: str | Path | None = None, path=None,
+                  imu_inputs: dict | None = None):
     """A :class:`System` continuing the map saved in ``map_dir`` (same sensor, same image size). A
     SIGTERM / Ctrl-C while the map loads leaves ``output/stats.json`` with its error, as one during
     the run does; a map another command is writing is waited for, or refused naming it, and a
-    stopped in-place run's map is read from ``.previous-run/`` (:func:`vslam.map.io.load_run_map`)."""
+    stopped in-place run's map is read from ``.previous-run/`` (:func:`vslam.map.io.load_run_map`).
+    An inertial sensor (``imu_inputs``: the System's IMU arguments) continues a gravity-aligned map
+    (:func:`_continue_inertial`)."""
     from vslam.errors import MapFormatError
     from vslam.map.io import load_run_map
     from vslam.runner import error_stats_when_stopped
@@ -303,8 +314,36 @@ def _continue_map(cfg, ds, sensor: str, map_dir: str | Path, output: str | Path 
         raise MapFormatError(f"{map_dir}: the map's camera is {camera.width}x{camera.height}, the sequence's "
                              f"{ds.camera.width}x{ds.camera.height}")
     log.info("continuing the map in %s (%d keyframes)", map_dir, len(slam_map.keyframes))
-    system = System.from_map(cfg, ds.camera, sensor, slam_map, database)
+    if imu_inputs:
+        system = _continue_inertial(cfg, ds, sensor, map_dir, slam_map, database, imu_inputs)
+    else:
+        system = System.from_map(cfg, ds.camera, sensor, slam_map, database)
     system.map_loaded = str(Path(map_dir).resolve())  # stats.json's map_loaded
+    return system
+
+
+def _continue_inertial(cfg, ds, sensor: str, map_dir, slam_map, database, imu_inputs: dict):
+    """A :class:`System` with the IMU continuing the gravity-aligned ``slam_map`` (ORB-SLAM3's Atlas
+    with an IMU: a new map, merged later). The session does not place its frames in the loaded map:
+    its IMU needs its own initialization (velocities and biases over its own keyframes), so it
+    bootstraps a new segment past the loaded ones, initializes its IMU there (the gravity-aligned move
+    leaves the loaded segments where they are, :func:`vslam.backend.inertial_mapping.move_map`), and
+    loop closing joins it to the loaded map by a yaw + translation once it recognizes a loaded place
+    (:mod:`vslam.loop.segment_merging`; the join waits for the IMU initialization). Poses are in the
+    loaded map's world from the join on."""
+    from vslam.errors import ConfigError, MapFormatError
+    from vslam.system import System
+
+    if not slam_map.gravity_aligned:
+        raise MapFormatError(f"{map_dir}: the map is not gravity-aligned (its run never initialized an IMU); "
+                             f"continue it with --sensor {sensor.removesuffix('-inertial')}")
+    system = System(cfg, ds.camera, sensor=sensor, slam_map=slam_map, **imu_inputs)
+    if system.loop_closer is None:
+        raise ConfigError("continuing a map needs loop.enabled (its keyframe database finds the places)")
+    system.loop_closer.adopt_keyframes(database)
+    # the first bootstrap starts the segment past the loaded ones (Tracker.start_in_map's numbering)
+    system.tracker.state.segment = max(k.segment for k in slam_map.keyframes.values())
+    system.loaded_keyframes = len(slam_map.keyframes)
     return system
 
 

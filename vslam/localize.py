@@ -50,6 +50,10 @@ def localize_path(
     where frames are decoded ahead (:func:`vslam.runner.run_sequence`; the poses do not depend on it).
     ``gt`` chooses the ground truth as for :func:`vslam.api.run_path` (None: the dataset's own,
     ``"none"``, or a trajectory file).
+    ``sensor`` may be an inertial one (``stereo-inertial`` ...; the default for a map an inertial run
+    made): its frames are read as the base sensor's and localized in the fixed map, whose world stays
+    as saved (gravity-aligned, z up, metric for a visual-inertial map: ``stats`` ``map_gravity_aligned``).
+    The localizer tracks visually; the IMU samples are not read (``stats`` ``imu_used`` false).
     Returns a :class:`vslam.runner.RunResult` (``stats`` and the trajectory of the localized frames).
     Raises :class:`MapFormatError` for a missing or corrupt map, :class:`DatasetError` for a bad sequence.
     """
@@ -72,8 +76,9 @@ def localize_path(
         cfg = resolve_config(config, list(overrides))
         loc_cfg = cfg.localize
         slam_map, database, map_camera, metadata = open_map(map_dir)
-        ds, sensor, stop = open_sequence(path, dataset, sensor, start_frame, max_frames,
-                                         preferred_sensor=metadata.get("sensor"), camera=camera)
+        inertial = _inertial_request(sensor, metadata.get("sensor"))
+        ds, sensor, stop = open_sequence(path, dataset, sensor and sensor.removesuffix("-inertial"), start_frame,
+                                         max_frames, preferred_sensor=metadata.get("sensor"), camera=camera)
         _check_camera(map_camera, ds.camera)
         truth = resolve_ground_truth(ds, gt, (start_frame, stop))
         localizer = Localizer(slam_map, database, ds.camera, cfg, sensor=sensor, localize_config=loc_cfg)
@@ -87,10 +92,14 @@ def localize_path(
         "start_frame": start_frame,
         **truth.stats(),
     }
+    if inertial or slam_map.gravity_aligned:
+        extra_stats.update({"sensor": f"{sensor}-inertial" if inertial else sensor,
+                            "map_gravity_aligned": bool(slam_map.gravity_aligned), "imu_used": False})
     # never into the map's folder or the sequence; locked; a previous result moved aside
     return run_sequence(
         localizer, FrameRange(ds, start_frame, stop), total=stop - start_frame, output_dir=output,
-        ground_truth=truth.trajectory, align="sim3" if sensor == "mono" else "se3", progress=progress,
+        ground_truth=truth.trajectory, progress=progress,
+        align="sim3" if sensor == "mono" and not slam_map.gravity_aligned else "se3",  # a VI map is metric
         extra_stats=extra_stats, prefetch_mode=prefetch, inputs=inputs,
     )
 
@@ -110,6 +119,15 @@ def counts_line(stats: dict) -> str:
     pct = 100.0 * c["localized"] / c["frames"] if c["frames"] else 0.0
     return (f"{c['localized']}/{c['frames']} frames localized ({pct:.1f} %: {c['tracked']} tracked + "
             f"{c['relocalized']} relocalized), {c['lost']} lost")
+
+
+def _inertial_request(sensor: str | None, map_sensor: str | None) -> bool:
+    """Whether the localization is of an inertial sensor: the one asked for, else the map's."""
+    from vslam.inertial.sensors import split_sensor
+
+    if sensor is not None:
+        return split_sensor(sensor)[1]
+    return map_sensor is not None and map_sensor.endswith("-inertial")
 
 
 def open_map(map_dir: Path) -> tuple[Any, Any, Any, dict]:

@@ -9,7 +9,8 @@ merging (Campos et al., T-RO 2021, sec. VI-B):
    descriptor matching to the candidate's and its covisible keyframes' map points, 3D-3D RANSAC,
    SE(3) from depth, Sim(3) from B's own map points for monocular maps, then guided matching and
    pose refinement), accepted with ``loop.closing.min_inliers`` (``min_inliers_mono``) map-point inliers.
-2. **Alignment.** Each accepted match gives ``S_A_B = S_world_cam(match) T_world_cam(B kf)^-1``; the
+2. **Alignment.** Each accepted match gives ``S_A_B = S_world_cam(match) T_world_cam(B kf)^-1`` (two
+   gravity-aligned visual-inertial maps: its yaw + translation only, as everything below); the
    largest group of matches agreeing within ``agree_m`` (relative ``agree_rel`` of A's extent for
    monocular) and ``agree_deg`` wins and must hold ``min_agreeing`` B keyframes, else the maps do not
    overlap (:class:`vslam.errors.MergeError`). The transform is re-estimated over all their 3D-3D
@@ -45,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from vslam.errors import ConfigError, MapFormatError, MergeError
+from vslam.map.pose_graph_4dof import align_points_4dof, yaw_correction
 
 log = logging.getLogger(__name__)
 
@@ -240,10 +242,11 @@ def _rms_residual(S: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
-def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> tuple[np.ndarray, dict]:
+def estimate_transform(group: list[SeamMatch], map_a, sensor: str, four_dof: bool = False) -> tuple[np.ndarray, dict]:
     """``(S_A_B, alignment)``: ``S_A_B`` from all 3D-3D correspondences of the agreeing matches
-    (B-world point of each inlier keypoint -> A's map point), Umeyama inside LMedS; the best single
-    match's when that fails. ``alignment``: its ``inliers`` (correspondences it explains, of
+    (B-world point of each inlier keypoint -> A's map point), Umeyama inside LMedS (``four_dof``: two
+    gravity-aligned maps, yaw + translation only, :func:`vslam.map.pose_graph_4dof.align_points_4dof`);
+    the best single match's when that fails. ``alignment``: its ``inliers`` (correspondences it explains, of
     ``correspondences``) and their RMS ``residual`` (A's map units: metres unless monocular)."""
     from vslam.errors import GeometryError
     from vslam.geometry.align import align_points
@@ -258,7 +261,10 @@ def estimate_transform(group: list[SeamMatch], map_a, sensor: str) -> tuple[np.n
     if ok.sum() < 6:
         return fallback
     try:
-        S, inl = align_points(src[ok], dst[ok], with_scale=sensor == "mono", threshold=None)
+        if four_dof:
+            S, inl = align_points_4dof(src[ok], dst[ok])
+        else:
+            S, inl = align_points(src[ok], dst[ok], with_scale=sensor == "mono", threshold=None)
     except GeometryError as exc:
         log.warning("merge: refining the transform failed (%s); using the best match's", exc)
         return fallback
@@ -289,26 +295,27 @@ def _fuse_seam(slam_map, group: list[SeamMatch], kf_offset: int, camera, sensor:
 def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: MergeOptions | None = None,
                source_b: str = "", vocabulary=None) -> MergeResult:
     """Merge ``map_b`` into ``map_a`` (modified in place; returned as ``result.map``) and its database
-    into ``db_a`` (steps 1-4 of the module docstring). Raises :class:`MergeError` when no overlap is found."""
-    from vslam.backend.local_mapping import LocalMapper
-    from vslam.loop.vocabulary import load_default_vocabulary
-    from vslam.map.append import append_map
-    from vslam.map.database import KeyframeDatabase
+    into ``db_a`` (steps 1-4 of the module docstring). Raises :class:`MergeError` when no overlap is found.
 
+    An inertial ``sensor`` verifies as its base sensor; two gravity-aligned maps (``Map.gravity_aligned``)
+    align by a yaw + translation (each match's transform and the fit: both IMUs observe roll and pitch)."""
+    from vslam.inertial.sensors import split_sensor
+    from vslam.loop.vocabulary import load_default_vocabulary
+
+    sensor = split_sensor(sensor)[0]
+    four_dof = bool(map_a.gravity_aligned and map_b.gravity_aligned)
     options = options or MergeOptions()
     t0 = time.perf_counter()
     vocabulary = vocabulary or load_default_vocabulary()
-    if db_a is None:
-        db_a = KeyframeDatabase(vocabulary.n_words, cfg.loop.database)
-        for k in sorted(map_a.keyframes):
-            kf = map_a.keyframes[k]
-            if kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
-                db_a.add(k, vocabulary.transform(kf.descriptors)[0])
+    db_a = _database(map_a, db_a, vocabulary, cfg)
     matches = find_seam(map_a, db_a, map_b, db_b, camera, sensor, cfg, vocabulary, options)
+    if four_dof:
+        for m in matches:  # each match's world change: its verified pose's yaw + translation only
+            m.S_a_b = yaw_correction(map_b.keyframes[m.b_kf].T_world_cam, m.ver.T_world_cam)
     t_pr = time.perf_counter() - t0
     centres = np.stack([k.T_world_cam[:3, 3] for k in map_a.keyframes.values()])
     extent = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) if len(centres) else 0.0
-    tol = options.agree_rel * max(extent, 1e-6) if sensor == "mono" else options.agree_m
+    tol = options.agree_rel * max(extent, 1e-6) if sensor == "mono" and not four_dof else options.agree_m
     need = cfg.loop.closing.min_inliers_mono if sensor == "mono" else cfg.loop.closing.min_inliers
     strong = [m for m in matches if m.ver.n_inliers >= need]
     group = agreeing_group(strong, map_b, tol, options.agree_deg)
@@ -317,7 +324,7 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
             f"the maps do not overlap: {len(matches)} of {len(map_b.keyframes)} keyframes of B were verified in A "
             f"and at most {len(group)} agree on one alignment ({options.min_agreeing} needed); map B must revisit "
             "a place mapped in A")
-    S, alignment = estimate_transform(group, map_a, sensor)
+    S, alignment = estimate_transform(group, map_a, sensor, four_dof)
     ids = {m.b_kf for m in group}
     weak = [m for m in matches if m.b_kf not in ids and _agrees(m, S, map_b, tol, options.agree_deg)]
     scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
@@ -325,14 +332,8 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
     seg_a = map_a.keyframes[best.a_kf].segment
     seg_b = map_b.keyframes[best.b_kf].segment
     n_a_kf = len(map_a.keyframes)
-    appended = append_map(map_a, map_b, S, source=source_b, segment_map={seg_b: seg_a})
+    appended = _append(map_a, map_b, db_a, db_b, S, vocabulary, source_b, {seg_b: seg_a})
     off = appended.kf_offset
-    for k in sorted(map_b.keyframes):  # the merged database: B's BoW vectors under their new ids
-        kf = map_b.keyframes[k]
-        if db_b is not None and k in db_b:
-            db_a.add(k + off, db_b.bow(k))
-        elif kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
-            db_a.add(k + off, vocabulary.transform(kf.descriptors)[0])
     fused = _fuse_seam(map_a, group + weak, off, camera, sensor, cfg)
     for k in sorted(map_a.keyframes):
         if k >= off and map_a.keyframes[k].segment == seg_a:
@@ -347,13 +348,57 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
         "keyframe_id_offset": off, "point_id_offset": appended.point_offset,
         "alignment_inliers": alignment["inliers"], "alignment_correspondences": alignment["correspondences"],
         "alignment_residual": round(alignment["residual"], 6),  # RMS over the inliers, A's units (m unless mono)
+        "alignment_dof": 4 if four_dof else 7 if sensor == "mono" else 6,
     }
     log.info("merge: %d/%d B keyframes verified, %d agree; scale %.4f; %d points fused, %d covisibility links "
              "across the seam", len(matches), len(map_b.keyframes), len(group), scale, fused, cross)
+    stats.update(_weld(map_a, camera, sensor, cfg, options, best.b_kf + off))
+    stats["merge_s"] = round(time.perf_counter() - t0, 2)
+    return MergeResult(stats=stats, S_a_b=S, map=map_a, database=db_a, matches=group)
+
+
+def _database(map_a, db_a, vocabulary, cfg):
+    """A's keyframe database: the saved one, else one built from A's descriptors."""
+    from vslam.map.database import KeyframeDatabase
+
+    if db_a is not None:
+        return db_a
+    db_a = KeyframeDatabase(vocabulary.n_words, cfg.loop.database)
+    for k in sorted(map_a.keyframes):
+        kf = map_a.keyframes[k]
+        if kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
+            db_a.add(k, vocabulary.transform(kf.descriptors)[0])
+    return db_a
+
+
+def _append(map_a, map_b, db_a, db_b, S: np.ndarray, vocabulary, source_b: str, segment_map: dict):
+    """Step 3: B appended into A under ``S`` (:func:`vslam.map.append.append_map`; A's gravity alignment
+    is the merged map's), the appended keyframes' IMU velocities turned with ``S``, B's BoW vectors in ``db_a``."""
+    from vslam.map.append import append_map
+
+    appended = append_map(map_a, map_b, S, source=source_b, segment_map=segment_map)
+    off = appended.kf_offset
+    for k in sorted(map_b.keyframes):
+        extra = map_a.keyframes[k + off].extra
+        if "imu_velocity" in extra:
+            extra["imu_velocity"] = S[:3, :3] @ extra["imu_velocity"]
+        kf = map_b.keyframes[k]
+        if db_b is not None and k in db_b:
+            db_a.add(k + off, db_b.bow(k))
+        elif kf.descriptors is not None and kf.descriptors.dtype == np.uint8:
+            db_a.add(k + off, vocabulary.transform(kf.descriptors)[0])
+    return appended
+
+
+def _weld(map_a, camera, sensor: str, cfg, options: MergeOptions, seam_kf: int) -> dict:
+    """Step 4's BAs: the local BA around ``seam_kf`` and the global BA (as ``options`` say); their stats."""
+    from vslam.backend.local_mapping import LocalMapper
+
+    stats: dict[str, Any] = {}
     mapper = LocalMapper(map_a, camera, sensor, cfg.backend, cfg.features.scale_factor)
     if options.local_ba:
         t1 = time.perf_counter()
-        res = mapper.process(best.b_kf + off)
+        res = mapper.process(seam_kf)
         stats["local_ba"] = None if res is None else {
             "keyframes": int(res.kf_ids.size) if hasattr(res, "kf_ids") else None,
             "initial_rms_px": round(float(res.initial_rms_px), 4), "final_rms_px": round(float(res.final_rms_px), 4),
@@ -361,8 +406,7 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
     if options.global_ba:
         mapper.global_ba()
         stats["global_ba"] = mapper.global_ba_result
-    stats["merge_s"] = round(time.perf_counter() - t0, 2)
-    return MergeResult(stats=stats, S_a_b=S, map=map_a, database=db_a, matches=group)
+    return stats
 
 
 # ============================================================================ paths
@@ -411,10 +455,12 @@ def merge_paths(map_a: str | Path, map_b: str | Path, output: str | Path, config
         cfg = resolve_config(config, list(overrides))
         map_A, db_A, cam_A, meta_A = _load(a, "A")
         map_B, db_B, cam_B, meta_B = _load(b, "B")
+    from vslam.inertial.sensors import ALL_SENSORS as SENSORS  # inertial: a yaw + translation when both are aligned
+
     sensor = meta_A.get("sensor")
-    if sensor != meta_B.get("sensor") or sensor not in ("mono", "stereo", "rgbd"):
+    if sensor != meta_B.get("sensor") or sensor not in SENSORS:
         raise MapFormatError(f"cannot merge a {meta_A.get('sensor')!r} map ({a}) with a {meta_B.get('sensor')!r} "
-                             f"map ({b}): both must come from the same sensor (mono, stereo or rgbd)")
+                             f"map ({b}): both must come from the same sensor ({', '.join(SENSORS)})")
     if cam_A is None:
         raise MapFormatError(f"{a}: the map stores no camera; cannot verify places")
     if cam_B is not None and (abs(cam_A.fx - cam_B.fx) > 1e-3 * cam_A.fx or cam_A.width != cam_B.width

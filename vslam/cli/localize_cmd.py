@@ -20,7 +20,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("map_dir", help="the folder a `vslam run` wrote (containing map/)")
     p.add_argument("path", help="sequence folder")
     p.add_argument("--output", "-o", required=True, help="output folder (trajectory.txt, stats.json)")
-    p.add_argument("--sensor", choices=["mono", "stereo", "rgbd"], help="default: the map's sensor")
+    p.add_argument("--sensor", choices=["mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial"],
+                   help="default: the map's sensor (an inertial one localizes its frames visually in the "
+                        "map's gravity-aligned world)")
     p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder")
     p.add_argument("--camera", metavar="FILE",
                    help="camera calibration of the sequence (any format `vslam run --camera` reads)")

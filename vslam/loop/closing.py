@@ -24,7 +24,8 @@ After Mur-Artal et al., T-RO 2015, sec. VII, and ORB-SLAM2 (T-RO 2017, sec. VI-D
    query's covisible keyframes and fused too (ORB-SLAM's SearchAndFuse). The essential graph
    (spanning tree: each keyframe to its predecessor; covisibility links of weight >=
    ``covisibility_edge_weight``; the loop links) is optimized with
-   :func:`vslam.backend.optimize_pose_graph` (SE(3); Sim(3) for monocular) with the segment's first
+   :func:`vslam.backend.optimize_pose_graph` (SE(3); Sim(3) for monocular; position + yaw in a
+   gravity-aligned map, :func:`vslam.map.pose_graph_4dof.optimize_pose_graph_4dof`) with the segment's first
    keyframe and the loop keyframe fixed; every map point moves with its reference (first) keyframe
    (:func:`vslam.backend.correct_points`); then an optional global BA (not after a loop accepted by
    confirmation unless ``closing.global_ba_weak_loops``: its few observations do not hold the loop).
@@ -73,6 +74,7 @@ from vslam.map.keyframe import KeyFrame
 from vslam.map.keyframe_queue import KeyframeQueue
 from vslam.map.map import Map
 from vslam.map.pose_graph import load_solver, optimize_pose_graph
+from vslam.map.pose_graph_4dof import optimize_pose_graph_4dof, yaw_correction
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +109,7 @@ class _Prepared:
     q_group: list[int]
     c_group: list[int]
     fused: int
+    four_dof: bool = False  # a gravity-aligned segment: yaw + position only
 
 
 def _rot_deg(R: np.ndarray) -> float:
@@ -153,6 +156,9 @@ class LoopCloser:
         # candidate-side keyframe's depth keypoints (the tried groups overlap; the map is locked)
         self._extra_matches: dict[int, dict] | None = None
         self.loops: list[LoopRecord] = []
+        # visual-inertial runs, until this run's IMU is initialized: a segment join between a
+        # gravity-aligned and a visual segment waits for it (vslam.loop.segment_merging.try_merge)
+        self.imu_pending = False
         self.rejected = 0
         self.candidates = 0
         self._last_loop_kf = -10**9
@@ -267,9 +273,13 @@ class LoopCloser:
         # the essential graph is solved without the map lock (realtime: tracking goes on meanwhile)
         t_pg = time.perf_counter()
         graph = prepared.graph
-        result = optimize_pose_graph(graph.T_init, graph.edges, fixed=graph.fixed,
-                                     sim3=self.sensor == "mono", config=self.pose_graph_config)
-        log.info("essential graph: %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms", len(graph.nodes),
+        if prepared.four_dof:
+            result = optimize_pose_graph_4dof(graph.T_init, graph.edges, graph.fixed, self.pose_graph_config)
+        else:
+            result = optimize_pose_graph(graph.T_init, graph.edges, fixed=graph.fixed,
+                                         sim3=self.sensor == "mono", config=self.pose_graph_config)
+        log.info("essential graph (%s): %d keyframes, %d edges, error %.4g -> %.4g, %.0f ms",
+                 "4-DoF" if prepared.four_dof else "Sim3" if self.sensor == "mono" else "SE3", len(graph.nodes),
                  len(graph.edges), result.initial_error, result.final_error, 1e3 * (time.perf_counter() - t_pg))
         with self.lock:
             record = self._apply_correction(prepared, result)
@@ -435,16 +445,17 @@ class LoopCloser:
         (a snapshot of the keyframe poses; solved by :meth:`process` without the lock)."""
         cc = self.config.closing
         in_segment = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
-        # the query side: the query and its covisible keyframes, moved by the loop's correction
-        S_q = ver.S_world_cam
-        S_corr = S_q @ kf.T_cam_world
+        # the query side: the query and its covisible keyframes, moved by the loop's correction; in a
+        # gravity-aligned segment its yaw + translation only (roll / pitch are observed by the IMU)
+        four_dof = self.map.segment_gravity_aligned(kf.segment)
+        S_corr = yaw_correction(kf.T_world_cam, ver.T_world_cam) if four_dof else ver.S_world_cam @ kf.T_cam_world
         q_group = [kf.id] + [k for k in self._connected(kf.id) if k in in_segment and k != match_id]
         c_group = self._group(match_id, set(q_group))
         S_init = {k: S_corr @ self.map.keyframes[k].T_world_cam for k in q_group}
         fused = fuse_loop_points(self.map, self.camera, self.sensor, cc, kf, ver, q_group, c_group, S_init)
         graph = build_essential_graph(self.map, kf.segment, match_id, q_group, c_group, S_init,
                                       cc.covisibility_edge_weight, cc.loop_edge_information)
-        return _Prepared(kf, match_id, ver, score, graph, q_group, c_group, fused)
+        return _Prepared(kf, match_id, ver, score, graph, q_group, c_group, fused, four_dof)
 
     def _apply_correction(self, p: _Prepared, result) -> LoopRecord:
         """Under the map lock: write the essential graph's result back

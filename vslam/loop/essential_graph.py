@@ -1,7 +1,9 @@
 """The essential graph of a loop correction: its construction from the map (spanning tree,
 strong covisibility links, loop links) and the write-back of the solved poses to the keyframes and
 map points. The solve itself is :func:`vslam.map.pose_graph.optimize_pose_graph` (Mur-Artal et al.,
-T-RO 2015, sec. VII-D; Strasdat et al., RSS 2010 for Sim(3))."""
+T-RO 2015, sec. VII-D; Strasdat et al., RSS 2010 for Sim(3)), or in a gravity-aligned map
+:func:`vslam.map.pose_graph_4dof.optimize_pose_graph_4dof` (position + yaw; Campos et al., T-RO
+2021, sec. VI-C); the keyframes' IMU velocities turn with their corrections."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -96,3 +98,16 @@ def write_back_corrections(map_: Map, segment: int, nodes: list[int], T_before: 
     store.position[ids] = correct_points(store.position[ids], ref, T_now, S_now)
     for k, T in zip(now, T_after):
         map_.keyframes[k].T_world_cam = T.copy()
+    rotate_velocities(map_, now, C[node_of])
+
+
+def rotate_velocities(map_: Map, kf_ids: list[int], C: np.ndarray) -> None:
+    """Visual-inertial keyframes: turn each ``extra["imu_velocity"]`` (world frame) with its
+    keyframe's world correction ``C[i] (4, 4)`` (``v' = R_C v``; a pure yaw after a 4-DoF graph), as
+    ORB-SLAM3 does after its 4-DoF essential graph. Keyframes without a velocity are left alone."""
+    for k, Ck in zip(kf_ids, C):
+        extra = map_.keyframes[k].extra
+        v = extra.get("imu_velocity")
+        if v is not None:
+            R = Ck[:3, :3] / np.cbrt(np.linalg.det(Ck[:3, :3]))
+            extra["imu_velocity"] = R @ v

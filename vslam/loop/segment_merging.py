@@ -10,7 +10,10 @@ candidates that lie in *other* segments (a loop proper stays within one segment)
    from the segment's own points for monocular, guided matching and pose refinement), accepted with
    ``min_inliers`` (``min_inliers_mono``) map-point inliers;
 2. the query's segment moves into the matched one's world by ``S = S_world_cam(verified) T_cam_world``
-   (monocular: the scale re-estimated on all verified inliers, :func:`_seam_similarity`;
+   (monocular: the scale re-estimated on all verified inliers, :func:`_seam_similarity`; two
+   gravity-aligned segments of a visual-inertial map: its yaw + translation only,
+   :func:`vslam.map.pose_graph_4dof.yaw_correction`, and a segment whose IMU is not initialized yet
+   waits for it before joining an aligned one;
    :func:`vslam.map.segment_merge.move_segment`; the older segment keeps its frame, so a continued
    map stays in the loaded map's world) and takes its id;
 3. the seam is welded: the verified matches and the matched place's points projected into the
@@ -31,6 +34,7 @@ import numpy as np
 
 from vslam.geometry.lie import inv_se3
 from vslam.map.keyframe import KeyFrame
+from vslam.map.pose_graph_4dof import yaw_correction
 from vslam.map.segment_merge import fuse_seam, move_segment, similarity_scale
 
 if TYPE_CHECKING:
@@ -67,9 +71,17 @@ def try_merge(closer: "LoopCloser", kf: KeyFrame, candidates: list[int]) -> Merg
     cc = closer.config.closing
     need = cc.min_inliers_mono if closer.sensor == "mono" else cc.min_inliers
     t0 = time.perf_counter()
+    aligned = closer.map.segment_gravity_aligned(kf.segment)
     for match_id in candidates[: cc.max_tries]:
         match = closer.map.keyframes.get(match_id)
         if match is None or match.bad or match.segment == kf.segment:
+            continue
+        if closer.map.segment_gravity_aligned(match.segment) != aligned and (closer.imu_pending or aligned):
+            # one side is still in its visual world: while this run's IMU initialization is pending,
+            # joining now would put keyframes of two sessions into one IMU initialization, so the join
+            # waits for it; once it is done (a segment started after tracking was lost), the visual
+            # segment joins the aligned one by the visual similarity, as without an IMU
+            log.debug("merge candidate %d -> %d deferred: only one segment is gravity-aligned", kf.id, match_id)
             continue
         ver = closer._verify_group(kf, match_id)
         if ver is None or ver.n_inliers < need:
@@ -107,7 +119,10 @@ def _join(closer: "LoopCloser", kf: KeyFrame, match_id: int, ver, t0: float) -> 
     slam_map = closer.map
     match = slam_map.keyframes[match_id]
     src, dst = kf.segment, match.segment
-    S = _seam_similarity(closer, kf, ver) @ kf.T_cam_world  # query segment's world -> matched segment's world
+    if slam_map.segment_gravity_aligned(src):  # both gravity-aligned (try_merge): yaw + translation only
+        S = yaw_correction(kf.T_world_cam, ver.T_world_cam)
+    else:
+        S = _seam_similarity(closer, kf, ver) @ kf.T_cam_world  # query segment's world -> matched segment's world
     T_before = kf.T_world_cam.copy()
     moved = move_segment(slam_map, src, dst, S)
     seam = [kf.id] + [k for k in slam_map.covisible(kf.id, cc.candidate_neighbours) if k in set(moved)]

@@ -81,6 +81,7 @@ from vslam.map.io_unpack import (
     unpack_map_attributes as _unpack_map_attributes,
     unpack_points as _unpack_points,
 )
+from vslam.map.io_inertial import check_inertial_extras, check_inertial_metadata
 from vslam.map.map import Map
 from vslam.map.segments import segments_from_json, segments_to_json
 
@@ -124,6 +125,7 @@ def save_map(
     final = directory / MAP_DIRNAME
     metadata = {} if metadata is None else metadata
     _check_json("metadata", metadata)
+    check_inertial_metadata("save_map", metadata)
     directory.mkdir(parents=True, exist_ok=True)
     tmp = directory / f".{MAP_DIRNAME}.tmp-{uuid.uuid4().hex[:12]}"
     tmp.mkdir()
@@ -230,6 +232,7 @@ def load_map(
     slam_map.covisibility = _unpack_covisibility(root, manifest, graph_arrays)
     _check_references(root, slam_map)
     _unpack_map_attributes(root, manifest, slam_map)
+    check_inertial_extras(root / KEYFRAMES_FILE, keyframes)
     if manifest["version"] >= 2:  # version 1 (no table): one row per segment, built by its own run
         slam_map.segments = segments_from_json(str(root / MANIFEST_FILE), manifest.get("segments"))
 
@@ -253,6 +256,9 @@ def load_map(
                                  "of the map (corrupted or from another map)")
     camera = _camera_from_json(root, manifest.get("camera"))
     metadata = manifest.get("metadata") or {}
+    if not isinstance(metadata, dict):
+        raise MapFormatError(f"{root / MANIFEST_FILE}: metadata must be a JSON object")
+    check_inertial_metadata(root / MANIFEST_FILE, metadata)
     log.info("map loaded from %s: %d keyframes, %d points in %.2f s", root, len(keyframes), len(points),
              time.perf_counter() - t0)
     return slam_map, database, camera, metadata

@@ -41,8 +41,9 @@ KEYPOINT_COUNT_FIELD = "uv"  # its length is the keyframe's keypoint count N_k
 # MapPointStore columns documented in format version 1 (any array column is saved generically).
 POINT_COLUMNS = ("position", "normal", "min_distance", "max_distance", "found", "visible", "n_obs",
                  "first_kf", "last_seen_kf", "alive", "color", "descriptor")
-# Map attributes handled explicitly; any other scalar attribute is saved in map.json.
-MAP_STRUCTURES = ("keyframes", "points", "covisibility", "segments")
+# Map attributes handled explicitly (gravity_aligned: written to map_attributes as a checked bool);
+# any other scalar attribute is saved in map.json.
+MAP_STRUCTURES = ("keyframes", "points", "covisibility", "segments", "gravity_aligned")
 
 KINDS = ("scalar", "stacked", "keypoint", "dict")
 JSON_SCALARS = (bool, int, float, str, type(None))

@@ -183,6 +183,7 @@ def pack_map_attributes(map: Map) -> dict:  # noqa: A002
             raise MapFormatError(f"cannot save Map.{name} of type {type(value).__name__}: map format "
                                  f"{FORMAT_VERSION} stores only numbers/strings besides {MAP_STRUCTURES}")
         out[name] = value
+    out["gravity_aligned"] = bool(map.gravity_aligned)  # visual-inertial maps: world z up (FORMAT.md)
     return out
 
 

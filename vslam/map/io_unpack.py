@@ -209,6 +209,9 @@ def unpack_map_attributes(root: Path, manifest: dict, slam_map: Map) -> None:
     for name, value in manifest["map_attributes"].items():
         if name not in ours:
             raise MapFormatError(f"{root / MANIFEST_FILE}: Map attribute {name!r} is unknown to this build")
+        if name == "gravity_aligned" and not isinstance(value, bool):
+            raise MapFormatError(f"{root / MANIFEST_FILE}: map_attributes.gravity_aligned must be true or false, "
+                                 f"got {value!r}; the manifest is corrupted")
         setattr(slam_map, name, value)
 
 

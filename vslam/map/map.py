@@ -29,6 +29,10 @@ class Map:
         self.loop_epoch = 0
         # provenance of the segments (vslam.map.segments.SegmentRecord rows); empty: one run's own
         self.segments: list = []
+        # visual-inertial maps: the world is gravity-aligned (z up) and metric since the IMU
+        # initialization (vslam.backend.inertial_mapping); loop corrections and segment joins are then
+        # 4-DoF (position + yaw, vslam.map.pose_graph_4dof). Saved in map.json ``map_attributes``.
+        self.gravity_aligned: bool = False
 
     # ------------------------------------------------------------------ keyframes
     def next_keyframe_id(self) -> int:
@@ -80,6 +84,20 @@ class Map:
             return np.zeros(0, dtype=np.int64)
         ids = unique_ids(len(self.points), *[self.keyframes[k].observed_ids() for k in kf_ids])
         return ids[self.points.alive[ids]]
+
+    def segment_gravity_aligned(self, segment: int) -> bool:
+        """Whether ``segment`` lives in the gravity-aligned world: the map is (:attr:`gravity_aligned`)
+        and the segment's IMU is initialized, i.e. its keyframes carry ``extra["imu_velocity"]`` (set
+        from the IMU initialization on). A segment started later (tracking lost, or a session
+        continuing a saved map) is in its own visual world until its own IMU initialization. A map
+        whose keyframes carry no velocity at all (the initialization moved the whole map, every
+        segment with it) counts as aligned throughout."""
+        if not self.gravity_aligned:
+            return False
+        kfs = [k for k in self.keyframes.values() if not k.bad]
+        if not any("imu_velocity" in k.extra for k in kfs):
+            return True
+        return any("imu_velocity" in k.extra for k in kfs if k.segment == segment)
 
     # ------------------------------------------------------------------ points
     def point(self, pid: int) -> MapPoint:

@@ -6,7 +6,9 @@ the data steps shared by loop closing (segments of one run meeting) and offline 
   for metric sensors) and relabelled ``dst``. A pose moves as the camera centre does and stays
   rigid: ``T' = [R_S R, s R_S t + t_S; 0, 1]``; measured depths scale with ``s``. The segment
   table (:mod:`vslam.map.segments`) keeps one row per piece, the moved rows with ``S_dst_src``
-  composed into their transform.
+  composed into their transform. A keyframe's IMU velocity (``extra["imu_velocity"]``, world frame)
+  becomes ``s R v``. Between gravity-aligned segments ``S_dst_src`` is a yaw + translation
+  (:func:`vslam.map.pose_graph_4dof.yaw_correction`), so the moved segment stays gravity-aligned.
 * :func:`fuse_seam`: duplicates across the seam are fused: the verified matches, then the map
   points of the matched place projected into the seam keyframes and fused (ORB-SLAM's
   SearchAndFuse; the ``dst`` point survives).
@@ -61,6 +63,8 @@ def move_segment(slam_map: Map, src: int, dst: int, S_dst_src: np.ndarray) -> li
         kf.T_world_cam = move_pose(S, kf.T_world_cam)
         if s != 1.0 and kf.depth is not None:
             kf.depth = kf.depth * s
+        if "imu_velocity" in kf.extra:  # visual-inertial: the world-frame velocity turns (and scales) too
+            kf.extra["imu_velocity"] = S[:3, :3] @ kf.extra["imu_velocity"]
         kf.segment = dst
     slam_map.segments = [SegmentRecord(dst, r.source, r.source_segment, r.keyframe_ids, S @ r.S_segment_source)
                          if r.segment == src else r for r in slam_map.segments]
