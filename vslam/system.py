@@ -97,6 +97,8 @@ class System:
         self.inertial = None
         if inertial:
             self._init_inertial(imu, imu_calibration)
+            if self.loop_closer is not None:  # joins with gravity-aligned segments wait for the IMU
+                self.loop_closer.imu_pending = True
         # per tracked frame: timestamp, reference keyframe id or -1, T_world_cam as tracked, and the
         # reference keyframe's pose at that time (identity without one); see frame_poses
         self._timestamps: list[float] = []
@@ -135,6 +137,8 @@ class System:
 
     def _on_keyframe(self, kf: KeyFrame) -> None:
         self._kf_inserted[kf.id] = kf.T_world_cam.copy()
+        if self.inertial is not None and self.inertial.initialized:  # its IMU state: the tracker's at this frame
+            self._store_tracked_state(kf)
         for cb in self._kf_listeners:
             cb(kf)
 
@@ -156,8 +160,11 @@ class System:
         self.filter_backend: FilterBackend | None = None
         params = mapping_params(fcfg, feat, camera.K)
         if backend_cfg is not None and backend_cfg.type != "ekf":
-            self.local_mapper = LocalMapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock,
-                                            new_points=params)
+            mapper = LocalMapper
+            if self.sensor != sensor:  # inertial sensors: a visual-inertial local BA once the IMU is initialized
+                from vslam.backend.inertial_ba_mapping import InertialLocalMapper as mapper
+            self.local_mapper = mapper(self.map, camera, sensor, backend_cfg, feat.scale_factor, self._map_lock,
+                                       new_points=params)
             self.add_keyframe_listener(self.local_mapper.on_keyframe)
             self.local_mapper.correction_listeners.append(self._on_local_ba_correction)
             return
@@ -210,7 +217,9 @@ class System:
 
     # ------------------------------------------------------------------ inertial (issue 28)
     def _init_inertial(self, imu: Any, imu_calibration: Any) -> None:
-        """The IMU initialization on the keyframes (:class:`vslam.backend.inertial_mapping.InertialMapping`)."""
+        """The IMU initialization on the keyframes (:class:`vslam.backend.inertial_mapping.InertialMapping`);
+        the local mapper's BA becomes visual-inertial once it succeeds
+        (:class:`vslam.backend.inertial_ba_mapping.InertialLocalMapper`)."""
         from vslam.backend.inertial_mapping import InertialMapping
         from vslam.errors import DatasetError
 
@@ -218,35 +227,75 @@ class System:
             missing = " and ".join(n for n, v in (("IMU samples", imu), ("IMU calibration", imu_calibration)) if v is None)
             raise DatasetError(f"sensor {self.sensor} needs {missing}: a dataset with an IMU (EuRoC imu0/) or --imu FILE")
         self.inertial = InertialMapping(imu, imu_calibration, monocular=self.base_sensor == "mono")
+        if hasattr(self.local_mapper, "state_listeners"):
+            self.local_mapper.inertial = self.inertial
+            self.local_mapper.state_listeners.append(self._on_imu_states)
 
     def _inertial_step(self, frame: Frame, out: Any) -> np.ndarray | None:
         """After a keyframe, until the IMU is initialized: try it on the map's keyframes; on success the
         map was moved by ``S`` (gravity-aligned z-up world, metric scale); move the tracker, the
-        trajectory recorded so far and the keyframes' insertion poses with it, and start the IMU
-        prediction from the newest keyframe with its estimated velocity and the biases. Returns ``S``
-        when the map moved now, else None."""
-        from vslam.frontend.imu_prediction import ImuPredictor
+        trajectory recorded so far and the keyframes' insertion poses with it, store the keyframes'
+        velocities and biases, run a full VI-BA, and start the IMU prediction from the newest keyframe's
+        state. Later keyframes: the full VI-BA again at :data:`~vslam.backend.inertial_mapping.REFINE_AT_S`.
+        Returns ``S`` when the map moved now, else None."""
         from vslam.map.segment_merge import move_pose
 
         im = self.inertial
-        if im.initialized or not out.is_keyframe or out.state != "ok":
+        if not out.is_keyframe or out.state != "ok":
+            return None
+        if im.initialized:
+            if im.refinement_due(frame.timestamp):
+                self._full_inertial_ba()
             return None
         with self._map_lock:
             start = im.try_initialize(self.map, self.tracker.segment, frame.index, frame.timestamp)
             if start is None:
                 return None
+            if self.loop_closer is not None:
+                self.loop_closer.imu_pending = False
             S = start.S
             self.tracker.move_world(S)
             self._T_rec = [move_pose(S, T) for T in self._T_rec]
             self._T_ref_rec = [move_pose(S, T) if r >= 0 else T for T, r in zip(self._T_ref_rec, self._ref)]
             self._kf_inserted = {k: move_pose(S, T) for k, T in self._kf_inserted.items()}
+            self.map.gravity_aligned = True
+            im.store_states(self.map, self.tracker.segment)
+        self._full_inertial_ba()
+        from vslam.backend.inertial_ba_mapping import keyframe_state
+        from vslam.frontend.imu_prediction import ImuPredictor
+        from vslam.inertial import ImuBias
+
+        anchors = getattr(self.local_mapper, "estimated", None)  # None: no visual-inertial local BA
+        # the optimized frame pose: depth sensors, keyframe states from a VI-BA in the same frame (ImuPredictor)
+        pose = not im.monocular and anchors is not None and self.local_mapper.config.mode == "deterministic"
+        with self._map_lock:
+            kf = im.newest_keyframe(self.map, self.tracker.segment)
             res = start.result
-            kf = max((k for k in self.map.keyframes.values() if k.segment == self.tracker.segment and not k.bad),
-                     key=lambda k: k.timestamp)
-            k = int(np.argmin(np.abs(res.timestamps - kf.timestamp)))
-            self.tracker.set_imu_predictor(ImuPredictor(im.imu, im.calib, res.bias, kf.timestamp, kf.T_world_cam,
-                                                        res.velocities[k]))
+            v, b = keyframe_state(kf) or (res.velocities[-1], np.r_[res.bias.gyro, res.bias.accel])
+            self.tracker.set_imu_predictor(ImuPredictor(im.imu, im.calib, ImuBias(b[:3], b[3:]), kf.timestamp,
+                                                        kf.T_world_cam, v, use_optimized_pose=pose, anchors=anchors))
         return S
+
+    def _full_inertial_ba(self) -> None:
+        """A full VI-BA of the current segment (graph backend with the inertial mapper), counted."""
+        if hasattr(self.local_mapper, "full_inertial_ba"):
+            self.local_mapper.full_inertial_ba(self.tracker.segment, self.inertial.monocular)
+        self.inertial.n_full_ba += 1
+
+    def _store_tracked_state(self, kf: KeyFrame) -> None:
+        from vslam.backend.inertial_ba_mapping import store_state
+
+        state = self.tracker.imu_state(kf.timestamp)
+        if state is not None:
+            store_state(kf, *state)
+
+    def _on_imu_states(self, kf_ids: list[int]) -> None:
+        """A VI-BA estimated these keyframes' states: the predictor takes the newest's velocity and biases."""
+        p = self.tracker.imu_predictor
+        kfs = [self.map.keyframes[k] for k in kf_ids if k in self.map.keyframes]
+        if p is not None and p.active and kfs:
+            kf = max(kfs, key=lambda k: k.timestamp)
+            p.adopt_keyframe(kf.timestamp, kf.T_world_cam, kf.extra["imu_velocity"], kf.extra["imu_bias"])
 
     # ------------------------------------------------------------------ streaming
     def prepare(self, frame: Frame) -> None:
@@ -421,7 +470,7 @@ class System:
         elif self.filter_backend is not None:
             backend = self.filter_backend.stats()
         inertial = {} if self.inertial is None else {
-            **self.inertial.stats(),
+            **self.inertial.stats(getattr(self.tracker.imu_predictor, "bias", None)),
             "imu_predicted_frames": getattr(self.tracker.imu_predictor, "n_predicted", 0),
             "imu_only_frames": self.tracker.n_imu_only}
         return {

@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 #: Seconds of keyframes before the first try: monocular (scale from the IMU needs motion) and others.
 MIN_DURATION_MONO_S = 2.0
 MIN_DURATION_S = 1.0
+#: Full VI-BAs after the one right after the initialization, at these seconds from the first keyframe
+#: of the initialization's window (ORB-SLAM3 ``LocalMapping``: its ``mTinit`` at 5 s and 15 s).
+REFINE_AT_S = (5.0, 15.0)
 
 
 @dataclass(frozen=True)
@@ -54,17 +57,21 @@ def alignment_similarity(result: InertialInitResult) -> np.ndarray:
 
 
 def move_map(slam_map: Map, S: np.ndarray) -> None:
-    """Move the whole map by the similarity ``S = [s R | t]`` (module docstring). Call it under the map lock."""
+    """Move the whole map by the similarity ``S = [s R | t]`` (module docstring). Call it under the map lock.
+    A continued map (``vslam run --map`` of a gravity-aligned map): its loaded, gravity-aligned segments
+    (:meth:`Map.segment_gravity_aligned`) stay; only the new session's segments and their points move."""
     S = np.asarray(S, float)
     s = float(np.cbrt(np.linalg.det(S[:3, :3])))
     R = S[:3, :3] / s
+    aligned = {g: slam_map.segment_gravity_aligned(g) for g in {k.segment for k in slam_map.keyframes.values()}}
+    kfs = [kf for kf in slam_map.keyframes.values() if not aligned[kf.segment]]
     store = slam_map.points
-    n = len(store)
-    store.position[:n] = store.position[:n] @ S[:3, :3].T + S[:3, 3]
-    store.normal[:n] = store.normal[:n] @ R.T
-    store.min_distance[:n] *= s
-    store.max_distance[:n] *= s
-    for kf in slam_map.keyframes.values():
+    rows = slice(0, len(store)) if len(kfs) == len(slam_map.keyframes) else slam_map.local_point_ids([k.id for k in kfs])
+    store.position[rows] = store.position[rows] @ S[:3, :3].T + S[:3, 3]
+    store.normal[rows] = store.normal[rows] @ R.T
+    store.min_distance[rows] *= s
+    store.max_distance[rows] *= s
+    for kf in kfs:
         kf.T_world_cam = move_pose(S, kf.T_world_cam)
         if s != 1.0:
             if kf.depth is not None:
@@ -97,6 +104,10 @@ class InertialMapping:
         self.start: InertialStart | None = None
         self.attempts = 0
         self.last_reason = "not tried"
+        self.refine_at_s = REFINE_AT_S
+        # full VI-BAs due so far (after the initialization, then at refine_at_s): ``stats.json``
+        # ``imu_full_ba``; the backend's ``vi_ba_full`` lists those that ran (not with every backend mode)
+        self.n_full_ba = 0
 
     @property
     def initialized(self) -> bool:
@@ -138,8 +149,40 @@ class InertialMapping:
                  frame_index, self.start.motion_s, len(t), res.scale, np.round(res.gravity_world, 3))
         return self.start
 
-    def stats(self) -> dict:
-        """The ``imu_*`` entries of ``stats.json``."""
+    def refinement_due(self, timestamp: float) -> bool:
+        """Whether the next full VI-BA of :attr:`refine_at_s` is due at ``timestamp`` (the caller runs
+        it and counts it in :attr:`n_full_ba`)."""
+        k = self.n_full_ba - 1  # the one after the initialization's is refinement 0
+        if not self.initialized or not 0 <= k < len(self.refine_at_s):
+            return False
+        return timestamp - float(self.start.result.timestamps[0]) >= self.refine_at_s[k]
+
+    def newest_keyframe(self, slam_map: Map, segment: int):
+        """The segment's newest good keyframe (by time)."""
+        return max((k for k in slam_map.keyframes.values() if k.segment == segment and not k.bad),
+                   key=lambda k: k.timestamp)
+
+    def store_states(self, slam_map: Map, segment: int) -> int:
+        """Store the initialization's velocities and biases on the window's keyframes (the
+        ``imu_velocity`` / ``imu_bias`` contract of :mod:`vslam.backend.inertial_ba_mapping`; the
+        velocities are already in the gravity-aligned world). Returns how many."""
+        from vslam.backend.inertial_ba_mapping import store_state
+
+        res = self.start.result
+        b = np.concatenate([res.bias.gyro, res.bias.accel])
+        by_time = {float(t): k for k, t in enumerate(res.timestamps)}
+        n = 0
+        for kf in slam_map.keyframes.values():
+            k = by_time.get(float(kf.timestamp))
+            if kf.segment == segment and not kf.bad and k is not None:
+                store_state(kf, res.velocities[k], b)
+                n += 1
+        return n
+
+    def stats(self, final_bias=None) -> dict:
+        """The ``imu_*`` entries of ``stats.json``; ``final_bias`` (an :class:`ImuBias`, the last
+        estimate: tracking's) replaces the initialization's biases in ``imu_bias_*``, which are then
+        also kept as ``imu_init_bias_*``."""
         out: dict = {"imu_initialized": self.initialized, "imu_init_attempts": self.attempts}
         if not self.initialized:
             out["imu_init_reason"] = self.last_reason
@@ -152,7 +195,12 @@ class InertialMapping:
             "gravity_world": [float(x) for x in res.gravity_world],  # in the visual world before the move
             "imu_bias_gyro": [float(x) for x in res.bias.gyro],
             "imu_bias_accel": [float(x) for x in res.bias.accel],
+            "imu_full_ba": self.n_full_ba,
         })
+        if final_bias is not None:
+            out["imu_init_bias_gyro"], out["imu_init_bias_accel"] = out["imu_bias_gyro"], out["imu_bias_accel"]
+            out["imu_bias_gyro"] = [float(x) for x in final_bias.gyro]
+            out["imu_bias_accel"] = [float(x) for x in final_bias.accel]
         if self.monocular:
             out["imu_scale"] = float(res.scale)
         return out

@@ -121,6 +121,15 @@ class Tracker:
         and feed it each tracked pose (``predictor.update``); the motion model stays the fallback."""
         self.imu_predictor = predictor
 
+    def imu_state(self, timestamp: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Inertial sensors: ``(velocity (3,), bias (6,) gyro then accelerometer)`` of the IMU
+        prediction at ``timestamp`` (a keyframe's initial state), or None without one."""
+        p = self.imu_predictor
+        v = p.velocity_at(timestamp) if p is not None and p.active else None
+        if v is None:
+            return None
+        return v, np.concatenate([p.bias.gyro, p.bias.accel])
+
     def move_world(self, S: np.ndarray) -> None:
         """The whole map moved by the similarity ``S`` (the IMU initialization's gravity alignment and
         scale): move the last poses, and scale the velocity and speed, with it."""
@@ -155,6 +164,12 @@ class Tracker:
         st.segment = new
         st.local_ids = None
         self.move_world(S_new_old)
+        p = self.imu_predictor
+        if p is not None and p.active:  # the IMU state moves with the segment (a 4-DoF join is rigid)
+            if abs(similarity_scale(S_new_old) - 1.0) < 1e-9:
+                p.apply_correction(S_new_old)
+            else:
+                p.stop("its map segment was joined under a scale change")
 
     @property
     def motion_model(self) -> MotionModel:
@@ -262,7 +277,36 @@ class Tracker:
                 T_world_cam, n_inl = self._relocalize(obs)
         if T_world_cam is None:
             return self._lost(frame, gray, obs)
+        if self.imu_predictor is not None:
+            T_world_cam = self._inertial_pose(frame, obs, T_world_cam)
         return self._tracked(frame, gray, obs, T_world_cam, n_inl)
+
+    def _inertial_pose(self, frame: Frame, obs: Observation, T_world_cam: np.ndarray) -> np.ndarray:
+        """Inertial sensors, IMU initialized: the frame's pose, velocity and biases optimized against the
+        IMU motion since the newest keyframe and the inlier reprojections
+        (:meth:`ImuPredictor.optimize`); the visual pose when that cannot run."""
+        t0 = time.perf_counter()
+        kf = self._inertial_anchor()
+        T = None
+        if kf is not None:
+            sel = np.flatnonzero(obs.point_ids >= 0)
+            X_world = self.map.points.position[obs.point_ids[sel]]
+            T = self.imu_predictor.optimize(frame.timestamp, T_world_cam, kf, X_world, obs.uv_undist[sel],
+                                            obs.sigma[sel], None if obs.u_right is None else obs.u_right[sel],
+                                            self.camera, self.local_map.bf)
+        self.timers["imu_pose"] = self.timers.get("imu_pose", 0.0) + time.perf_counter() - t0
+        return T_world_cam if T is None else T
+
+    def _inertial_anchor(self) -> KeyFrame | None:
+        """The keyframe the inertial pose optimization holds fixed: the newest of the segment, or
+        with the predictor's ``anchors`` the newest whose state a visual-inertial BA estimated."""
+        st, anchors = self.state, self.imu_predictor.anchors
+        kf = self.map.keyframes.get(st.last_kf) if st.last_kf is not None else None
+        if anchors is None or kf is None or kf.id in anchors:
+            return kf if kf is not None and kf.segment == st.segment else None
+        ids = [k for k in anchors if k in self.map.keyframes and self.map.keyframes[k].segment == st.segment
+               and not self.map.keyframes[k].bad]
+        return self.map.keyframes[max(ids, key=lambda k: self.map.keyframes[k].timestamp)] if ids else None
 
     def _tracked(self, frame: Frame, gray: np.ndarray, obs: Observation, T_world_cam: np.ndarray,
                  n_inl: int) -> TrackOutput:

@@ -87,8 +87,12 @@ class ImuMeasurements:
                 f"{self.source or 'IMU'}: samples cover [{first:.6f}, {last:.6f}] s, not the interval "
                 f"[{t0:.6f}, {t1:.6f}] s; the IMU file must span the images"
             )
-        inner = (self.timestamps > t0) & (self.timestamps < t1)
-        g_end, a_end = self.at([t0, t1])
+        # the samples inside and their brackets: np.interp on them picks the same bracketing pair
+        # (same values) as on the whole series, and the strict inside is the same set of samples
+        lo = int(np.searchsorted(self.timestamps, t0, side="right"))
+        hi = int(np.searchsorted(self.timestamps, t1, side="left"))
+        g_end, a_end = self._take(slice(max(lo - 1, 0), hi + 1)).at([t0, t1])
+        inner = slice(lo, max(lo, hi))
         t = np.concatenate([[t0], self.timestamps[inner], [t1]])
         g = np.concatenate([g_end[:1], self.gyro[inner], g_end[1:]])
         a = np.concatenate([a_end[:1], self.accel[inner], a_end[1:]])

@@ -113,9 +113,9 @@ def preintegrate(imu: ImuMeasurements, t0: float, t1: float, params, bias: ImuBi
         bg, ba = np.asarray(bias.gyro, float), np.asarray(bias.accel, float)
         a = np.einsum("nij,nj->ni", so3_exp(0.5 * (w - bg) * dts[:, None]), a - ba) + ba
     pim = gtsam.PreintegratedCombinedMeasurements(params, bias.to_gtsam())
-    for k in range(len(dts)):
-        if dts[k] > 0:
-            pim.integrateMeasurement(a[k], w[k], float(dts[k]))
+    for a_k, w_k, dt in zip(a, w, dts.tolist()):
+        if dt > 0:
+            pim.integrateMeasurement(a_k, w_k, dt)
     return pim
 
 
