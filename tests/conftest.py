@@ -49,3 +49,14 @@ def cabinet_run(shared_data):
     results = [system.track(f) for f in ds]
     system.finish()
     return ds, system, results
+
+
+@pytest.fixture(scope="session")
+def mh01_stereo_inertial_first50(shared_data: Path, tmp_path_factory) -> Path:
+    """A ``vslam run`` folder of EuRoC MH_01's first 50 frames, stereo-inertial (a gravity-aligned
+    map), shared by the inertial continue / merge / localize tests: copy it before writing into it."""
+    from vslam.api import run_path
+
+    out = tmp_path_factory.mktemp("mh01_vi_first50") / "A"
+    run_path(shared_data / "euroc_mh01_vi_80", out, sensor="stereo-inertial", max_frames=50, prefetch="none")
+    return out

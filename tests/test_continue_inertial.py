@@ -38,12 +38,10 @@ MH01 = "euroc_mh01_vi_80"
 
 
 @pytest.fixture(scope="module")
-def mapped(shared_data: Path, tmp_path_factory) -> dict:
-    from vslam.api import run_path
-
+def mapped(shared_data: Path, tmp_path_factory, mh01_stereo_inertial_first50: Path) -> dict:
     root = tmp_path_factory.mktemp("continue_inertial")
     data = shared_data / MH01
-    run_path(data, root / "A", sensor="stereo-inertial", max_frames=50, prefetch="none")
+    shutil.copytree(mh01_stereo_inertial_first50, root / "A")
     gt = open_dataset(data, sensor="stereo").ground_truth()
     return {"root": root, "data": data, "gt": gt}
 

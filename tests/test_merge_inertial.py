@@ -20,6 +20,7 @@ which the 4-DoF alignment keeps as the IMUs observed them.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -35,13 +36,13 @@ MH01 = "euroc_mh01_vi_80"
 
 
 @pytest.fixture(scope="module")
-def sessions(shared_data: Path, tmp_path_factory) -> dict:
+def sessions(shared_data: Path, tmp_path_factory, mh01_stereo_inertial_first50: Path) -> dict:
     from vslam.api import run_path
     from vslam.cli import main
 
     root = tmp_path_factory.mktemp("merge_inertial")
     data = shared_data / MH01
-    run_path(data, root / "A", sensor="stereo-inertial", max_frames=50, prefetch="none")
+    shutil.copytree(mh01_stereo_inertial_first50, root / "A")
     run_path(data, root / "B", sensor="stereo-inertial", start_frame=30, prefetch="none")
     rc = main(["merge", str(root / "A"), str(root / "B"), "-o", str(root / "AB")])
     gt = open_dataset(data, sensor="stereo").ground_truth()

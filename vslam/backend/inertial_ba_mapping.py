@@ -228,17 +228,9 @@ class InertialLocalMapper(LocalMapper):
         except Exception as exc:
             log.warning("full VI-BA failed: %s", exc)
             return None
-        with self.lock:
-            if self.map.loop_epoch != epoch:
-                log.info("full VI-BA dropped: the map moved during the solve")
-                return None
-            before = {kid: self.map.keyframes[kid].T_world_cam.copy() for kid in result.kf_ids.tolist()
-                      if kid in self.map.keyframes}
-            self._apply(problem, result, ctx)
-            self._propagate_to_new_keyframes(before, known)
-            self._update_bad_keyframes()
-            self._store(result)
-            self.map.loop_epoch += 1  # local BAs built before this write-back are stale now
+        if not self._write_back_global(problem, result, ctx, epoch, known, "full VI-BA",
+                                       then=lambda: self._store(result)):
+            return None
         self.counts["vi_ba_full_calls"] += 1
         summary = {"keyframes": problem.num_keyframes, "points": problem.num_points,
                    "rms_px": [round(result.initial_rms_px, 4), round(result.final_rms_px, 4)],

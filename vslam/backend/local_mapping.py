@@ -47,6 +47,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -372,16 +373,8 @@ class LocalMapper:
             from vslam.backend.dense_links import strip_dense_links
 
             problem, result = strip_dense_links(problem, result, n_links)
-        with self.lock:
-            if self.map.loop_epoch != epoch:
-                LOG.info("global BA dropped: a loop correction moved the map during the solve")
-                return None
-            before = {kid: self.map.keyframes[kid].T_world_cam.copy() for kid in result.kf_ids.tolist()
-                      if kid in self.map.keyframes}
-            self._apply(problem, result, ctx)
-            self._propagate_to_new_keyframes(before, known)
-            self._update_bad_keyframes()
-            self.map.loop_epoch += 1  # local BAs built before this write-back are stale now
+        if not self._write_back_global(problem, result, ctx, epoch, known, "global BA"):
+            return None
         self.counts["global_ba_calls"] = self.counts.get("global_ba_calls", 0) + 1
         self.global_ba_result = {
             "keyframes": problem.num_keyframes, "points": problem.num_points,
@@ -391,6 +384,26 @@ class LocalMapper:
         }
         LOG.info("global BA: %s", self.global_ba_result)
         return result
+
+    def _write_back_global(self, problem, result, ctx, epoch: int, known: set[int], what: str,
+                           then: Callable[[], None] | None = None) -> bool:
+        """Under the lock, write a global solve (global BA, full VI-BA) back to the map, unless a loop
+        correction moved the map since its snapshot (``epoch``): poses and points, keyframes created
+        meanwhile (not in ``known``) moved with their segment, bad keyframes marked, ``then()`` (more
+        state to store), and ``Map.loop_epoch`` bumped (local BAs built before are stale). False when dropped."""
+        with self.lock:
+            if self.map.loop_epoch != epoch:
+                LOG.info("%s dropped: a loop correction moved the map during the solve", what)
+                return False
+            before = {kid: self.map.keyframes[kid].T_world_cam.copy() for kid in result.kf_ids.tolist()
+                      if kid in self.map.keyframes}
+            self._apply(problem, result, ctx)
+            self._propagate_to_new_keyframes(before, known)
+            self._update_bad_keyframes()
+            if then is not None:
+                then()
+            self.map.loop_epoch += 1
+        return True
 
     def _propagate_to_new_keyframes(self, before: dict[int, np.ndarray], known: set[int]) -> None:
         """Keyframes missing from a global BA (created during its solve) take the correction

@@ -127,25 +127,34 @@ def optimize_pose_graph(
     T_world_cam = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)
     n = len(T_world_cam)
     graph, values, n_edges = build_pose_graph(T_world_cam, edges, fixed, sim3, config)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(config.max_iterations)
-    params.setRelativeErrorTol(config.relative_tolerance)
-    params.setOrderingType(ELIMINATION_ORDERING)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    initial_error = graph.error(values)
-    result = optimizer.optimize()
+    result, initial_error, final_error, iterations = solve_lm(graph, values, config, ELIMINATION_ORDERING)
     S_out = _read_nodes(result, n, sim3)
     scales = np.cbrt(np.linalg.det(S_out[:, :3, :3]))
     T_out = S_out.copy()
     T_out[:, :3, :3] /= scales[:, None, None]
     out = PoseGraphResult(
-        T_world_cam=T_out, scales=scales, S_world_cam=S_out, initial_error=float(initial_error),
-        final_error=float(graph.error(result)), iterations=int(optimizer.iterations()),
-        time_s=time.perf_counter() - t0,
+        T_world_cam=T_out, scales=scales, S_world_cam=S_out, initial_error=initial_error,
+        final_error=final_error, iterations=iterations, time_s=time.perf_counter() - t0,
     )
     LOG.debug("pose graph (%s, %d nodes, %d edges): error %.4g -> %.4g in %d iterations",
               "Sim3" if sim3 else "SE3", n, n_edges, out.initial_error, out.final_error, out.iterations)
     return out
+
+
+def solve_lm(graph, values, config: PoseGraphConfig, ordering: str) -> tuple[object, float, float, int]:
+    """GTSAM Levenberg-Marquardt on a pose graph with ``config``'s iteration limit and relative
+    tolerance and the elimination ``ordering`` (``METIS`` / ``COLAMD``). Returns ``(values,
+    initial_error, final_error, iterations)``."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.max_iterations)
+    params.setRelativeErrorTol(config.relative_tolerance)
+    params.setOrderingType(ordering)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    initial_error = float(graph.error(values))
+    result = optimizer.optimize()
+    return result, initial_error, float(graph.error(result)), int(optimizer.iterations())
 
 
 def build_pose_graph(T_world_cam: np.ndarray, edges: Iterable[Sequence], fixed: Sequence[int], sim3: bool,

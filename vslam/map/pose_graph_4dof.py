@@ -45,7 +45,7 @@ import numpy as np
 
 from vslam.errors import GeometryError
 from vslam.map.config import PoseGraphConfig
-from vslam.map.pose_graph import PoseGraphResult, _checked_edge, nearest_rotations
+from vslam.map.pose_graph import PoseGraphResult, _checked_edge, nearest_rotations, solve_lm
 
 LOG = logging.getLogger(__name__)
 
@@ -197,7 +197,6 @@ def optimize_pose_graph_4dof(
         >>> np.round(res.T_world_cam[:, 0, 3], 3).tolist()
         [0.0, 1.0, 2.0]
     """
-    import gtsam
     from gtsam.symbol_shorthand import X, Z
 
     config = config or PoseGraphConfig()
@@ -205,13 +204,7 @@ def optimize_pose_graph_4dof(
     T_world_cam = np.asarray(T_world_cam, dtype=float).reshape(-1, 4, 4)
     n = len(T_world_cam)
     graph, values, n_edges, R = build_pose_graph_4dof(T_world_cam, edges, fixed, config)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(config.max_iterations)
-    params.setRelativeErrorTol(config.relative_tolerance)
-    params.setOrderingType(ELIMINATION_ORDERING_4DOF)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    initial_error = graph.error(values)
-    result = optimizer.optimize()
+    result, initial_error, final_error, iterations = solve_lm(graph, values, config, ELIMINATION_ORDERING_4DOF)
     T_out = np.tile(np.eye(4), (n, 1, 1))
     fixed_set = {int(f) for f in fixed}
     for k in range(n):
@@ -222,9 +215,8 @@ def optimize_pose_graph_4dof(
     for k in fixed_set:  # bit-exact: the equality constraint holds them, no round trip through Pose2
         T_out[k] = T_world_cam[k]
     out = PoseGraphResult(
-        T_world_cam=T_out, scales=np.ones(n), S_world_cam=T_out.copy(), initial_error=float(initial_error),
-        final_error=float(graph.error(result)), iterations=int(optimizer.iterations()),
-        time_s=time.perf_counter() - t0)
+        T_world_cam=T_out, scales=np.ones(n), S_world_cam=T_out.copy(), initial_error=initial_error,
+        final_error=final_error, iterations=iterations, time_s=time.perf_counter() - t0)
     LOG.debug("pose graph (4-DoF, %d nodes, %d edges): error %.4g -> %.4g in %d iterations", n, n_edges,
               out.initial_error, out.final_error, out.iterations)
     return out
