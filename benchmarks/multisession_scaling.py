@@ -12,7 +12,8 @@ with ``--workers 1`` for the parallel speed-up (``--executor ray``: on a local R
 
     python benchmarks/multisession_scaling.py -o /tmp/msbench --sizes 2 4 8 16 32 --sequential 16
 
-Writes ``DIR/results.json`` and prints the markdown table.
+Writes ``DIR/results.json`` and prints the markdown table; ``--plot PNG`` draws the merge stage and the
+overlap search against N log N (``--from-json DIR/results.json`` redraws an earlier run's).
 """
 from __future__ import annotations
 
@@ -94,6 +95,41 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def merge_stage(r: dict) -> tuple[float, float]:
+    """``(wall s, work s)`` of the merge stage of one row: the rounds' wall time plus the pose graph +
+    global BA + outputs, and the same with every merge task's own time summed (the work)."""
+    work = sum(sum(times) for _, _, times in r["merge_rounds"])
+    return r["merge_s"] + r["finalize_s"], work + r["finalize_s"]
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Merge stage (wall and work) and overlap search against N, with N log N and N^2 through the
+    first point of the merge work."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows = [r for r in rows if r["workers"] == rows[0]["workers"]]
+    n = np.array([r["arcs"] for r in rows], float)
+    wall, work = np.array([merge_stage(r) for r in rows]).T
+    fig = Figure(figsize=(6.5, 4.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.loglog(n, work, "o-", label="merge stage: work (every merge task + pose graph + global BA + outputs)")
+    ax.loglog(n, wall, "s-", label=f"merge stage: wall time, {rows[0]['workers']} workers")
+    ax.loglog(n, [r["search_s"] for r in rows], "^-", label="overlap search")
+    nlogn = n * np.log2(np.maximum(n, 2))
+    ax.loglog(n, work[0] * nlogn / nlogn[0], ":", color="grey", label="N log N (through the first point)")
+    ax.loglog(n, work[0] * (n / n[0]) ** 2, "--", color="grey", label="N^2 (through the first point)")
+    ax.set_xlabel("sessions N (arcs of the synthetic fleet)")
+    ax.set_ylabel("seconds")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    ax.set_title("vslam map: merge stage and overlap search vs N", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--output", type=Path, required=True)
@@ -102,7 +138,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--sequential", type=int, default=0, help="also map this many arcs with --workers 1")
     p.add_argument("--executor", choices=("local", "ray"), default="local")
+    p.add_argument("--plot", type=Path, help="draw the merge stage and the overlap search against N log N")
+    p.add_argument("--from-json", type=Path, help="an earlier run's results.json: table and plot only")
     args = p.parse_args(argv)
+    if args.from_json:
+        rows = json.loads(args.from_json.read_text())
+        if args.plot:
+            plot(rows, args.plot)
+        print(table(rows))
+        return 0
     from vslam.datasets.synthetic.fleet import render_fleet
 
     fleet = args.output / "fleet"
@@ -115,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(map_fleet(fleet, n, args.output / f"map_{n}_w{w}", w, args.executor))
         print(json.dumps({k: v for k, v in rows[-1].items() if not k.endswith("task_s")}), file=sys.stderr)
         (args.output / "results.json").write_text(json.dumps(rows, indent=1))
+    if args.plot:
+        plot(rows, args.plot)
     print(table(rows))
     return 0
 

@@ -39,13 +39,25 @@ def shared_data() -> Path:
 def cabinet_run(shared_data):
     """TUM fr3/cabinet (58 keyframes) through the default pipeline, once per session:
     ``(dataset, system, per-frame results)``."""
+    return _cabinet(shared_data)
+
+
+@pytest.fixture(scope="session")
+def cabinet_run_integer_corners(shared_data):
+    """The same with integer FAST corners (``features.subpixel=off``, the default before issue 24):
+    the run whose weak loop (keyframe 57 -> 2, 10 inliers) tests/loop/test_sparse_loops.py checks;
+    with the sub-pixel keypoints of the default that loop is not closed (and the ATE is lower)."""
+    return _cabinet(shared_data, ["features.subpixel=off"])
+
+
+def _cabinet(shared_data, overrides=()):
     from vslam.api import load_config
     from vslam.config import Config
     from vslam.datasets import open_dataset
     from vslam.system import System
 
     ds = open_dataset(shared_data / "tum_fr3_cabinet_keyframes58", sensor="rgbd")
-    system = System(load_config(Config), ds.camera, sensor="rgbd")
+    system = System(load_config(Config, None, list(overrides)), ds.camera, sensor="rgbd")
     results = [system.track(f) for f in ds]
     system.finish()
     return ds, system, results

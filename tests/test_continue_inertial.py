@@ -95,7 +95,10 @@ def test_localizing_with_an_inertial_sensor_keeps_the_maps_gravity(mapped: dict,
     s = json.loads((root / "loc" / "stats.json").read_text())
     assert s["sensor"] == "stereo-inertial" and s["map_gravity_aligned"] is True and s["imu_used"] is False
     assert s["localized_ratio"] >= 0.9  # measured 1.0
-    assert 0.001 < s["ate_rmse"] < 0.0065  # measured 0.0029-0.0031 m; band 2x
+    # measured 0.0029-0.0031 m; band 2x. The figure moves with small changes of the map: 0.0051 m once the local
+    # VI-BA reused its preintegrations (inertial_ba_mapping.REUSE_BIAS_TOL; 0.0037 re-integrating them), 0.0027-0.0114
+    # with fewer keyframes (frontend.keyframes.tracked_ratio_inertial 0.65-0.72)
+    assert 0.001 < s["ate_rmse"] < 0.0065
     # poses in the map's gravity-aligned world: each camera's gravity direction within 2 deg of the
     # ground truth's (EuRoC's world is z up; issue goal), measured <= 0.74 deg
     t = read_tum(root / "loc" / "trajectory.txt")

@@ -221,6 +221,17 @@ def test_inputs_name_the_sessions(tmp_path: Path) -> None:
         parse_inputs([str(f), str(tmp_path / "walk")])
 
 
+def test_a_session_task_prefetches_in_a_thread_only_with_a_core_to_spare() -> None:
+    """Two session tasks with their prefetch threads on two cores tracked in 0.73x the sequential
+    time (benchmarks/RESULTS.md): a task gets a prefetch thread only where it has a second core."""
+    from vslam.multisession.sessions import session_prefetch
+
+    assert session_prefetch("local", 1, cpus=2) == "thread"
+    assert session_prefetch("local", 2, cpus=2) == "none"
+    assert session_prefetch("local", 4, cpus=8) == "thread"
+    assert session_prefetch("ray", 1, cpus=8) == "none"  # a Ray task asks for one CPU
+
+
 def test_session_graph_components_and_tree() -> None:
     names = ["a", "b", "c", "d", "e"]
     edges = [{"a": "a", "b": "b", "inliers": 100}, {"a": "b", "b": "c", "inliers": 500},
@@ -358,3 +369,158 @@ def test_a_failed_merge_drops_its_overlaps_and_the_rest_still_merge(tmp_path: Pa
     S_d, off_d = abd.sessions["d"]
     assert off_d == 100 and S_d[0, 3] == 1.0 and abd.sessions["b"][1] == 100 and abd.sessions["a"][1] == 0
     assert [r["pairs"] for r in rounds] == [1, 1, 1] and len(calls) == 3
+
+
+class _FakeMerges:
+    """A stand-in for :func:`merge_task` over folders that are names only: a merged map has the
+    keyframes of both, ``S_a_b`` a shift drawn from the output's name; ``fail`` names the outputs
+    whose merge fails; ``hooks[out]`` runs first (blocking on an event, ...)."""
+
+    def __init__(self, keyframes: dict[str, int], fail: tuple[str, ...] = (), hooks: dict | None = None) -> None:
+        self.keyframes, self.fail, self.hooks, self.calls = dict(keyframes), fail, hooks or {}, []
+
+    def __call__(self, a_folder, b_folder, out_folder, config=None, overrides=(), b_keyframes=None) -> dict:
+        out = Path(out_folder).name
+        self.calls.append((Path(a_folder).name, Path(b_folder).name, out, b_keyframes))
+        if out in self.hooks:
+            self.hooks[out]()
+        if out in self.fail:
+            return {"ok": False, "error": "no overlap", "task_s": 0.0}
+        ka, kb = self.keyframes[Path(a_folder).name], self.keyframes[Path(b_folder).name]
+        self.keyframes[out] = ka + kb
+        S = np.eye(4)
+        S[:3, 3] = [len(out), sum(map(ord, out)) % 7, ka]
+        return {"ok": True, "S_a_b": S.tolist(), "offset": ka, "keyframes": ka + kb, "seam_keyframes": 3,
+                "alignment_inliers": 500, "fused_points": 10, "scale": 1.0, "task_s": 0.0}
+
+
+class _ThreadExecutor:
+    """TaskExecutor's ``map`` / ``submit`` / ``wait_any`` / ``slots`` on threads, running ``fake`` in
+    place of the task function."""
+
+    def __init__(self, fake: _FakeMerges, slots: int) -> None:
+        import concurrent.futures as cf
+
+        self.fake, self.slots, self.cf = fake, slots, cf
+        self.pool = cf.ThreadPoolExecutor(max_workers=slots)
+
+    def map(self, fn, args_list, on_error):
+        return [self.fake(*args) for args in args_list]
+
+    def submit(self, fn, args, on_error):
+        return self.pool.submit(self.fake, *args)
+
+    def wait_any(self, tasks):
+        done, _ = self.cf.wait(tasks, return_when=self.cf.FIRST_COMPLETED)
+        task = next(t for t in tasks if t in done)
+        return task, task.result()
+
+
+def _fleet(n: int, ring: bool, seed: int, tmp_path: Path) -> tuple[list, list[dict], dict[str, int]]:
+    from vslam.multisession.tree_merge import Cluster
+
+    rng = np.random.default_rng(seed)
+    kf = {f"s{i}": int(rng.integers(5, 40)) for i in range(n)}
+    clusters = [Cluster(str(tmp_path / f"s{i}"), {f"s{i}": (np.eye(4), 0)}, kf[f"s{i}"]) for i in range(n)]
+    edges = [{"a": f"s{i}", "b": f"s{(i + 1) % n}", "inliers": int(rng.integers(50, 5000)),
+              "seam": [[i, i + 1, 40]]} for i in range(n if ring else n - 1)]
+    return clusters, edges, kf
+
+
+def _outcome(final, failed, rounds) -> tuple:
+    clusters = sorted((Path(c.folder).name, {n: (S.tolist(), off) for n, (S, off) in c.sessions.items()},
+                       c.keyframes, c.merges) for c in final)
+    return clusters, failed, [(r["round"], r["pairs"], r["merges"]) for r in rounds]
+
+
+def test_the_planned_tree_is_the_rounds_merges(tmp_path: Path) -> None:
+    """plan_tree (every merge assumed to succeed, a merged map has both maps' keyframes) gives the
+    merges merge_rounds makes, pair by pair, orientation and folder included, on chains and rings;
+    merge_tree (dataflow, on 1 to 3 workers) gives the same clusters, placements and records."""
+    from vslam.multisession.tree_merge import merge_rounds, merge_tree, plan_tree
+
+    for n, ring, seed in ((16, False, 0), (16, True, 1), (9, False, 2), (13, True, 3), (2, False, 4)):
+        clusters, edges, kf = _fleet(n, ring, seed, tmp_path)
+        fake = _FakeMerges(kf)
+        expected = _outcome(*merge_rounds(clusters, edges, _ThreadExecutor(fake, 1).map, tmp_path / "w"))
+        rounds_calls = list(fake.calls)
+        states, plan, keyframes = plan_tree(clusters, edges)
+        name = {i: f"s{i}" for i in range(n)} | {m.out: f"r{m.r}_{m.k}" for ms in plan for m in ms}
+        assert [(name[m.a], name[m.b], name[m.out]) for ms in plan for m in ms] == [c[:3] for c in rounds_calls]
+        assert len(states[-1]) == 1 and keyframes[states[-1][0]] == sum(kf.values())
+        for slots in (1, 2, 3):
+            fake = _FakeMerges(kf)
+            got = _outcome(*merge_tree(clusters, edges, _ThreadExecutor(fake, slots), tmp_path / "w"))
+            assert got == expected
+            assert sorted(fake.calls) == sorted(rounds_calls)  # seam keyframes included
+
+
+def test_a_merge_starts_once_its_clusters_exist_not_at_the_end_of_its_round(tmp_path: Path) -> None:
+    """A chain of 6: round 0 merges s0+s1, s2+s3, s4+s5; round 1 (s0..s3) needs only the first two.
+    With 2 workers and the s4+s5 merge held until the round-1 merge has started, the dataflow
+    starts it before that merge ends (the rounds would wait for all of round 0: the held merge's
+    wait would time out). No timing is asserted: the held merge only waits on an event."""
+    import threading
+
+    from vslam.multisession.tree_merge import merge_tree
+
+    clusters, edges, kf = _fleet(6, False, 0, tmp_path)
+    for e in edges:
+        e["inliers"] = 100
+    started = threading.Event()
+    waited = []
+    fake = _FakeMerges(kf, hooks={"r1_0": started.set, "r0_2": lambda: waited.append(started.wait(60))})
+    final, failed, rounds = merge_tree(clusters, edges, _ThreadExecutor(fake, 2), tmp_path / "w")
+    assert waited == [True]
+    assert [r["pairs"] for r in rounds] == [3, 1, 1] and len(final) == 1 and not failed
+    order = [c[2] for c in fake.calls]
+    assert order.index("r1_0") < order.index("r2_0") and order[-1] == "r2_0"
+
+
+def test_a_failed_merge_mid_tree_goes_on_round_by_round(tmp_path: Path) -> None:
+    """A merge of round 1 fails: the rest of round 1 still merges, what the dataflow started after it
+    is dropped, and the rounds go on from there: the outcome (clusters, failures, records) is
+    merge_rounds's, on any number of workers; the 4-cluster case of the failed-merge test too."""
+    from vslam.multisession.tree_merge import Cluster, merge_rounds, merge_tree
+
+    for n, ring, seed, fail in ((16, False, 0, ("r1_1",)), (16, True, 1, ("r0_3", "r2_0")), (9, False, 2, ("r0_0",))):
+        clusters, edges, kf = _fleet(n, ring, seed, tmp_path)
+        expected = _outcome(*merge_rounds(clusters, edges, _ThreadExecutor(_FakeMerges(kf, fail), 1).map,
+                                          tmp_path / "w"))
+        assert expected[1]  # something failed
+        for slots in (1, 2, 3):
+            got = _outcome(*merge_tree(clusters, edges, _ThreadExecutor(_FakeMerges(kf, fail), slots), tmp_path / "w"))
+            assert got == expected
+    clusters = [Cluster(str(tmp_path / n), {n: (np.eye(4), 0)}, 10 - i) for i, n in enumerate("abcd")]
+    edges = [{"a": "a", "b": "b", "inliers": 900}, {"a": "b", "b": "c", "inliers": 800},
+             {"a": "b", "b": "d", "inliers": 300}]
+    fake = _FakeMerges({n: 10 - i for i, n in enumerate("abcd")}, fail=("r1_0",))
+    final, failed, rounds = merge_tree(clusters, edges, _ThreadExecutor(fake, 2), tmp_path / "w")
+    assert sorted(sorted(c.sessions) for c in final) == [["a", "b", "d"], ["c"]]
+    assert failed == [{"a": "b", "b": "c", "error": "no overlap"}] and [r["pairs"] for r in rounds] == [1, 1, 1]
+
+
+def test_submitted_tasks_come_back_one_by_one_and_a_dying_one_is_recorded() -> None:
+    """TaskExecutor.submit / wait_any: in process (done at once) and on a pool of 2, where a task
+    that kills its worker gives on_error's record and the others their results."""
+    import os
+
+    from vslam.multisession.executor import TaskExecutor
+
+    def collect(ex, tasks) -> dict:
+        out = {}
+        pending = list(tasks)
+        while pending:
+            task, result = ex.wait_any(pending)
+            pending.remove(task)
+            out[task.args] = result
+        return out
+
+    on_error = lambda args, msg: {"error": msg}  # noqa: E731
+    with TaskExecutor("local", workers=0) as ex:
+        tasks = [ex.submit(abs, (-3,), on_error), ex.submit(abs, (4,), on_error)]
+        assert all(t.done for t in tasks) and collect(ex, tasks) == {(-3,): 3, (4,): 4} and ex.slots == 1
+    with TaskExecutor("local", workers=2) as ex:
+        out = collect(ex, [ex.submit(os._exit, (3,), on_error), ex.submit(abs, (-2,), on_error)])
+        assert out[(-2,)] == 2 and "the task's process failed" in out[(3,)]["error"]
+        assert collect(ex, [ex.submit(abs, (-5,), on_error)]) == {(-5,): 5} and ex.slots == 2

@@ -78,7 +78,9 @@ def test_stereo_inertial_is_gravity_aligned_and_as_good_as_stereo(runs, gt):
     assert len(r.trajectory) == 80 and s["imu_initialized"] and "imu_scale" not in s
     assert s["imu_init_time_s"] <= 1.5                            # measured 1.25 (10 keyframes after 1 s)
     assert gravity_tilt_deg(r, gt) <= 1.0                         # measured 0.18 (goal 2)
-    assert s["ate_rmse"] <= plain.stats["ate_rmse"] + 0.0001      # measured 0.0029 vs 0.0032 (0.0033 before VI-BA)
+    # measured 0.00288 vs 0.00317 (0.0033 before VI-BA) with features.subpixel=off, 0.00300 vs 0.00297
+    # with parabola (frontend.keyframes.tracked_ratio_inertial: the figures of its other values beside it)
+    assert s["ate_rmse"] <= plain.stats["ate_rmse"] + 0.0001
     assert "imu_initialized" not in plain.stats                   # plain sensors report no IMU
 
 
@@ -130,7 +132,7 @@ def test_velocities_and_biases_are_estimated(runs, gt, shared_data, sensor):
     np.testing.assert_allclose(s["imu_bias_gyro"], bias[-1, :3], atol=1e-6)   # the last estimate
     assert np.abs(np.array(s["imu_bias_gyro"]) - [-0.003172, 0.021268, 0.078502]).max() < 0.005
     # every local BA after the initialization is visual-inertial: measured 2 (mono: keyframes 14, 15
-    # come after frame 40) and 23 (stereo)
+    # come after frame 40) and 23 (stereo; 21 with features.subpixel=parabola)
     assert s["backend"]["vi_ba_calls"] >= (2 if sensor == "mono-inertial" else 15)
     assert len(s["backend"]["vi_ba_full"]) == s["imu_full_ba"]
 

@@ -20,6 +20,7 @@ stopped or failed run's ``stats.json`` with its ``error``); this module opens th
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -81,6 +82,8 @@ def localize_path(
                                          max_frames, preferred_sensor=metadata.get("sensor"), camera=camera)
         _check_camera(map_camera, ds.camera)
         truth = resolve_ground_truth(ds, gt, (start_frame, stop))
+        # features.subpixel=auto as the mapping run resolved it (its sensor), so the keypoints match the map's
+        cfg = dataclasses.replace(cfg, features=cfg.features.for_sensor(metadata.get("sensor") or sensor))
         localizer = Localizer(slam_map, database, ds.camera, cfg, sensor=sensor, localize_config=loc_cfg)
     extra_stats = {
         "sensor": sensor,

@@ -95,7 +95,8 @@ class Localizer:
         self.map = slam_map
         self.camera = camera
         self.sensor = sensor
-        self.detector = create_detector(cfg.features)
+        self.features = cfg.features.for_sensor(sensor)  # features.subpixel=auto resolved as the map's run did
+        self.detector = create_detector(self.features)
         self.scale_factor = float(getattr(cfg.features, "scale_factor", 1.2))
         self.bf = stereo_bf(camera, sensor)
         vocab = vocabulary if vocabulary is not None else load_default_vocabulary()
@@ -122,7 +123,7 @@ class Localizer:
         self.timers: dict[str, float] = defaultdict(float)
         self._timestamps: list[float] = []  # the localized frames, for trajectory()
         self._poses: list[np.ndarray] = []
-        self._preparer = FramePreparer(cfg.features, "match")  # its own detector, for the decoding thread
+        self._preparer = FramePreparer(self.features, "match")  # its own detector, for the decoding thread
         self._prepared: dict[int, tuple[Any, Any]] = {}  # frame index -> (frame, features found ahead)
 
     # ------------------------------------------------------------------ public
@@ -200,7 +201,7 @@ class Localizer:
     def frame_preparer(self) -> FramePreparer:
         """What :meth:`prepare` runs, picklable, for a decoding process; its results go to
         :meth:`adopt_prepared`."""
-        return FramePreparer(self.config.features, "match")
+        return FramePreparer(self.features, "match")
 
     def adopt_prepared(self, frame: Any, result: tuple[Any, Any], seconds: float = 0.0) -> None:
         """Take a :meth:`frame_preparer` result ``(gray, features)`` for ``frame``; :meth:`track`

@@ -79,7 +79,7 @@ class System:
             fcfg = config
         else:
             fcfg = getattr(config, "frontend", None) or FrontendConfig()
-        feat = features or getattr(config, "features", None) or FeatureConfig()
+        feat = (features or getattr(config, "features", None) or FeatureConfig()).for_sensor(sensor)
         self.config = config
         self.frontend_config = fcfg
         self.feature_config = feat

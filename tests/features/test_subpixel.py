@@ -1,4 +1,5 @@
-"""Sub-pixel keypoint refinement (issue #24 candidate, ``features.subpixel``; off by default)."""
+"""Sub-pixel keypoint refinement (issue #24 item 3, ``features.subpixel``; ``auto``: parabola for stereo and
+RGB-D, off for monocular)."""
 from __future__ import annotations
 
 import cv2
@@ -60,6 +61,32 @@ def test_refinement_moves_keypoints_by_at_most_half_a_level_pixel(mode):
     assert np.all(shift <= 0.5 * 1.2 ** a.octave * 1.01 + 1e-3)  # level sizes are rounded: 1 %
     if mode == "parabola":
         assert np.mean(shift > 0) > 0.5  # most corners do move
+
+
+@pytest.mark.parametrize("sensor, mode", [("mono", "off"), ("mono-inertial", "off"), ("stereo", "parabola"),
+                                          ("stereo-inertial", "off"), ("rgbd", "parabola"), ("rgbd-inertial", "off")])
+def test_auto_is_parabola_for_stereo_and_rgbd_and_off_for_the_others(sensor, mode):
+    assert FeatureConfig().subpixel == "auto"
+    assert FeatureConfig().for_sensor(sensor).subpixel == mode
+    assert FeatureConfig(subpixel="cornersubpix").for_sensor(sensor).subpixel == "cornersubpix"  # a choice stays
+
+
+def test_an_unresolved_auto_refines_nothing():
+    rng = np.random.default_rng(2)
+    img = (rng.random((240, 320)) * 255).astype(np.uint8)
+    a = create_detector(FeatureConfig(subpixel="auto")).detect(img)
+    b = create_detector(FeatureConfig(subpixel="off")).detect(img)
+    assert np.array_equal(a.uv, b.uv)
+
+
+def test_the_system_resolves_auto_for_its_sensor():
+    from vslam.geometry.camera import PinholeCamera
+    from vslam.config import Config
+    from vslam.system import System
+
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
+    assert System(Config(), cam, sensor="rgbd").feature_config.subpixel == "parabola"
+    assert System(Config(), cam, sensor="mono").feature_config.subpixel == "off"
 
 
 def test_unknown_subpixel_mode_is_refused():

@@ -47,7 +47,10 @@ def _drift_injector(system: System, deg: float):
 
 
 def _run(frames, sensor: str, overrides: list[str], drift_deg: float = 0.0):
-    cfg = load_config(Config, None, overrides)
+    # integer FAST corners, as when the bounds below were measured: with the sub-pixel keypoints (the stereo / RGB-D
+    # default since issue 24) the essential graph alone removes less of this synthetic drift (rgbd 0.255 -> 0.150 m,
+    # stereo 0.231 -> 0.249 m); this test is about the loop correction, not the features
+    cfg = load_config(Config, None, ["features.subpixel=off", *overrides])
     system = System(cfg, frames[0].camera, sensor=sensor)
     before: dict[int, np.ndarray] = {}  # pose of each loop's query keyframe just before its correction
     if drift_deg:

@@ -204,7 +204,8 @@ def _run(problem: BAProblem, config: LocalBAConfig, fixed_ids: np.ndarray) -> BA
     huber, chi2_max = _chi2_thresholds(obs, config)
     R0, t0 = _split_poses(problem.T_world_cam)
     R, t, X = R0, t0, problem.X_world.copy()
-    prepared = schur_lm.prepare(obs, cam_var, len(X)) if config.solver != "gtsam" else None
+    prepared = (schur_lm.prepare(obs, cam_var, len(X), config.sparse_min_cameras)
+                if config.solver != "gtsam" else None)
     build_s = time.perf_counter() - t_start
     iterations = 0
     active = np.ones(problem.num_observations, bool)

@@ -68,6 +68,11 @@ class LocalBAConfig:
     lambda_initial: float = param(1e-4, "initial LM damping (Marquardt scaling of the Hessian diagonal)", bounds="(0, 1e10]")
     relative_tolerance: float = param(1e-4, "stop a pass when an iteration's relative cost decrease falls below this", bounds="[0, 1]")
     min_depth: float = param(1e-3, "metres; an observation whose point is closer (or behind) is an outlier", bounds="[0, 1000]")
+    # issue #26 (vslam.backend.schur_sparse): the dense S costs O(n^3) per LM step, the block-sparse one follows the
+    # covisibility graph. Measured (CPU per damped solve, synthetic trajectory, 3-9 % of the blocks non-zero): 99
+    # cameras 5.2 vs 2.6 ms, 199: 27.6 vs 7.1, 399: 150 vs 15. Below 200 the gain is < 25 ms a step, and 200 keeps
+    # every local BA and the pinned runs' global BAs (7-Scenes loop: 157 keyframes) on the dense path, bit for bit.
+    sparse_min_cameras: int = param(200, "solve the reduced camera system block-sparse (SuperLU) above this many variable keyframes; dense Cholesky at or below (0: always sparse)", bounds="[0, 1000000000]")
 
     def __post_init__(self) -> None:
         if self.solver not in _SOLVERS:

@@ -56,6 +56,12 @@ MAX_INTERVAL_S = 3.0
 #: ORB-SLAM3's (its b_a went to (-0.073, 0.006, 0.043), ground truth (-0.025, 0.137, 0.076)): the
 #: refinements keep them.
 FULL_BA_PRIOR = {"stereo": (0.1, 1e5 ** -0.5), "mono": (0.1, 1e-5)}
+#: A local VI-BA reuses the preintegration of a keyframe interval it built before (the interval's
+#: samples are the same) while the interval's start bias moved less than this (rad/s, m/s^2, each
+#: component) since: GTSAM's ``CombinedImuFactor`` corrects the deltas to first order in the bias
+#: change (Forster et al. T-RO 2017, eq. 44), as ORB-SLAM3's local inertial BA always does (it never
+#: re-integrates there). Each local VI-BA re-integrated ~8 intervals before, 1 now (MH_01 80 frames).
+REUSE_BIAS_TOL = (1e-3, 1e-2)
 
 
 def keyframe_state(kf: KeyFrame) -> tuple[np.ndarray, np.ndarray] | None:
@@ -73,11 +79,12 @@ def store_state(kf: KeyFrame, velocity: np.ndarray, bias: np.ndarray) -> None:
 
 
 def build_chain(kfs: list[KeyFrame], imu, calib, params=None, free_first: bool = False,
-                bias_prior: tuple[float, float] | None = None) -> ImuChain | None:
+                bias_prior: tuple[float, float] | None = None, cache: dict | None = None) -> ImuChain | None:
     """The :class:`ImuChain` of keyframes ``kfs`` (time order), preintegrated at each interval's
     start bias. A keyframe without a stored state takes its neighbour's bias and the velocity of
     its camera centre's finite difference (the first VI-BA after a keyframe made before the
-    tracker had a state)."""
+    tracker had a state). ``cache``: ``{(id_i, id_j): (t0, t1, bias (6,), pim)}`` of earlier calls,
+    reused within :data:`REUSE_BIAS_TOL` and replaced by this call's intervals."""
     if len(kfs) < 2:
         return None
     params = make_params(calib) if params is None else params
@@ -97,22 +104,37 @@ def build_chain(kfs: list[KeyFrame], imu, calib, params=None, free_first: bool =
         a, b = max(i - 1, 0), min(i + 1, n - 1)
         dt = kfs[b].timestamp - kfs[a].timestamp
         V[i] = (kfs[b].T_world_cam[:3, 3] - kfs[a].T_world_cam[:3, 3]) / dt if dt > 0 else V[j]
-    pims = []
-    for i in range(n - 1):
-        t0, t1 = calib.imu_time(kfs[i].timestamp), calib.imu_time(kfs[i + 1].timestamp)
-        pim = None
-        if 0 < t1 - t0 <= MAX_INTERVAL_S:
-            try:
-                pim = preintegrate(imu, t0, t1, params, ImuBias(B[i, :3], B[i, 3:]))
-            except DatasetError as exc:
-                log.debug("no IMU factor between keyframes %d and %d: %s", kfs[i].id, kfs[i + 1].id, exc)
-        pims.append(pim)
+    pims = [_interval_pim(kfs[i], kfs[i + 1], B[i], imu, calib, params, cache) for i in range(n - 1)]
+    if cache is not None:
+        keep = {(kfs[i].id, kfs[i + 1].id) for i in range(n - 1)}
+        for key in [k for k in cache if k not in keep]:
+            del cache[key]
     free = None
     if free_first:
         free = np.zeros(n, bool)
         free[0] = True
     return ImuChain(np.array([k.id for k in kfs], np.int64), np.stack([k.T_world_cam for k in kfs]), V, B, pims,
                     bias_prior, free)
+
+
+def _interval_pim(kf_i: KeyFrame, kf_j: KeyFrame, bias: np.ndarray, imu, calib, params, cache: dict | None):
+    """The preintegration between two consecutive keyframes at ``bias (6,)`` (None: no IMU factor),
+    from ``cache`` when it holds the same interval at a bias within :data:`REUSE_BIAS_TOL`."""
+    t0, t1 = calib.imu_time(kf_i.timestamp), calib.imu_time(kf_j.timestamp)
+    if not 0 < t1 - t0 <= MAX_INTERVAL_S:
+        return None
+    hit = None if cache is None else cache.get((kf_i.id, kf_j.id))
+    if hit is not None and hit[0] == t0 and hit[1] == t1 and np.abs(hit[2][:3] - bias[:3]).max() <= REUSE_BIAS_TOL[0] \
+            and np.abs(hit[2][3:] - bias[3:]).max() <= REUSE_BIAS_TOL[1]:
+        return hit[3]
+    try:
+        pim = preintegrate(imu, t0, t1, params, ImuBias(bias[:3], bias[3:]))
+    except DatasetError as exc:
+        log.debug("no IMU factor between keyframes %d and %d: %s", kf_i.id, kf_j.id, exc)
+        return None
+    if cache is not None:
+        cache[(kf_i.id, kf_j.id)] = (t0, t1, np.array(bias, float), pim)
+    return pim
 
 
 class InertialLocalMapper(LocalMapper):
@@ -125,6 +147,7 @@ class InertialLocalMapper(LocalMapper):
         self.inertial = None
         self.state_listeners: list = []
         self._params = None
+        self._pims: dict = {}  # the local chain's preintegrations, reused (build_chain's cache)
         self.counts.update({"vi_ba_calls": 0, "vi_ba_full_calls": 0})
         self.full_ba_results: list[dict] = []
         # ids of the keyframes whose stored state a VI-BA estimated (tracking anchors its inertial pose
@@ -167,7 +190,8 @@ class InertialLocalMapper(LocalMapper):
             i -= 1
         if i == len(kfs):
             return None
-        return build_chain(kfs[max(i - 1, 0):], self.inertial.imu, self.inertial.calib, self._imu_params())
+        return build_chain(kfs[max(i - 1, 0):], self.inertial.imu, self.inertial.calib, self._imu_params(),
+                           cache=self._pims)
 
     def _solve(self, job):
         chain = getattr(job, "chain", None)

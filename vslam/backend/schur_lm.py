@@ -28,7 +28,11 @@ numba); per-observation outputs are component-major ``(a, M)`` rows. The reduced
 ``S = U - sum_p sum_{i,j in obs(p)} W_i V_p W_j^T`` is summed per point over its observation pairs
 (local BA, 10 + 10 keyframes: ~30 000 pairs of 6 x 3 blocks, ~7x fewer multiply-adds than the dense
 ``6 n_c x 3 P`` GEMM it replaced, 2-3x faster than a BSR sparse product on global problems), then
-solved densely. BLAS is held to one thread during a solve
+solved densely (LAPACK Cholesky, ``O(n_c^3)``) up to ``sparse_min_cameras`` variable cameras (config
+``backend.*.sparse_min_cameras``, 200); above, unless more than a quarter of the camera pairs share
+points, the same sums go into the non-zero ``6 x 6`` blocks only and SuperLU solves them
+(:mod:`vslam.backend.schur_sparse`; issue #26: 259 cameras along a trajectory, 7.5 vs 49 ms per
+damped solve). BLAS is held to one thread during a solve
 (threadpoolctl; process-wide while it runs): on a busy machine threaded GEMMs were 30x slower.
 """
 from __future__ import annotations
@@ -40,7 +44,7 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
-from vslam.backend import schur_kernels
+from vslam.backend import schur_kernels, schur_sparse
 from vslam.geometry.lie import so3_exp
 
 try:  # BLAS threads on a busy 2-core machine make the 60 x 9000 GEMM 30x slower; one thread is best
@@ -176,7 +180,8 @@ class _Structure:
     variable camera (``-1``: fixed).
     """
 
-    def __init__(self, obs: Observations, cam_var: np.ndarray, n_var_cams: int, n_points: int) -> None:
+    def __init__(self, obs: Observations, cam_var: np.ndarray, n_var_cams: int, n_points: int,
+                 sparse_min_cameras: int | None = None) -> None:
         self.n_c, self.n_p = n_var_cams, n_points
         self.obs_var = cam_var[obs.cam]
         free = np.flatnonzero(self.obs_var >= 0)
@@ -188,12 +193,20 @@ class _Structure:
         schur_kernels.group_by_point(free, pf, self.pt_ptr, self.pt_obs)
         self.Hcp = np.empty((len(obs.cam), 3, 6) if n_var_cams > 0 else (0, 3, 6))
         self._Y = np.empty((int(np.diff(self.pt_ptr).max(initial=0)), 3, 6))
-        self._S = np.empty((6 * n_var_cams, 6 * n_var_cams))
         self._bc = np.empty(6 * n_var_cams)
+        # above sparse_min_cameras variable cameras, unless most camera pairs share points: the block-sparse S
+        self.sparse = (schur_sparse.sparse_system(self.pt_ptr, self.pt_obs, self.obs_var, n_var_cams)
+                       if sparse_min_cameras is not None and n_var_cams > sparse_min_cameras else None)
+        self._S = np.empty((6 * n_var_cams, 6 * n_var_cams) if self.sparse is None else (0, 0))
 
     def reduce(self, W: np.ndarray, V: np.ndarray, gp: np.ndarray, gc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``S = -W blockdiag(V) W^T`` (dense ``6 n_c x 6 n_c``; overwritten by the next call) and
-        ``bc = gc - W blockdiag(V) gp``, for the blocks ``W (M, 3, 6)`` and ``V (3, 3, P)``."""
+        ``bc = gc - W blockdiag(V) gp``, for the blocks ``W (M, 3, 6)`` and ``V (3, 3, P)``. On the sparse
+        path ``S`` is left in ``self.sparse`` (its blocks) and the first item returned is None."""
+        if self.sparse is not None:
+            self.sparse.reduce(W, np.ascontiguousarray(V), gp, gc, self.pt_ptr, self.pt_obs, self.obs_var, self._Y,
+                               self._bc)
+            return None, self._bc
         schur_kernels.reduced_camera_system(W, np.ascontiguousarray(V), gp, gc, self.pt_ptr, self.pt_obs,
                                             self.obs_var, self._S, self._bc, self._Y)
         return self._S, self._bc
@@ -228,7 +241,8 @@ class Prepared:
     caller's when already sorted, the usual case), their order, the :class:`_Structure`, and the
     residuals at the last estimate a solve returned (the next pass starts there)."""
 
-    def __init__(self, obs: Observations, cam_var: np.ndarray, n_points: int) -> None:
+    def __init__(self, obs: Observations, cam_var: np.ndarray, n_points: int,
+                 sparse_min_cameras: int | None = None) -> None:
         cam = obs.cam
         self.order = None if np.all(cam[1:] >= cam[:-1]) else np.argsort(cam, kind="stable")
         if self.order is not None:  # camera-sorted: locality, pairs in camera order
@@ -239,7 +253,7 @@ class Prepared:
         self.cam_var = cam_var
         self.n_points = n_points
         self.var_rows = np.flatnonzero(cam_var >= 0)
-        self.st = _Structure(obs, cam_var, int(cam_var.max(initial=-1)) + 1, n_points)
+        self.st = _Structure(obs, cam_var, int(cam_var.max(initial=-1)) + 1, n_points, sparse_min_cameras)
         self.last: tuple | None = None  # (R, t, X, r, chi2, X_cam) of the last returned estimate (sorted order)
 
     def sorted_(self, a: np.ndarray | None) -> np.ndarray | None:
@@ -256,9 +270,11 @@ class Prepared:
         return r_out.T, chi2_out
 
 
-def prepare(obs: Observations, cam_var: np.ndarray, n_points: int) -> Prepared:
-    """The per-problem setup of :func:`solve`, to share between its passes."""
-    return Prepared(obs, cam_var, n_points)
+def prepare(obs: Observations, cam_var: np.ndarray, n_points: int, sparse_min_cameras: int | None = None) -> Prepared:
+    """The per-problem setup of :func:`solve`, to share between its passes. Above ``sparse_min_cameras``
+    variable cameras the reduced camera system is block-sparse (:mod:`vslam.backend.schur_sparse`;
+    None: always dense)."""
+    return Prepared(obs, cam_var, n_points, sparse_min_cameras)
 
 
 def _linearize(R, X_cam, r, chi2, w_rows, huber, obs, intr, st):
@@ -304,10 +320,13 @@ def _solve_damped(Hcc, gc, W, Hpp, gp, lam, st):
     if n_c == 0:
         return np.zeros((0, 6)), np.einsum("ijp,jp->ip", V, gp)
     S, bc = st.reduce(W, V, gp, gc)
-    schur_kernels.add_damped_camera_blocks(S, Hcc, float(lam))  # S += blockdiag(Hcc damped)
-    _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
-    if info != 0:  # not positive definite (or invalid input)
-        dc = np.linalg.lstsq(S, bc, rcond=None)[0]
+    if st.sparse is not None:  # the same S, block-sparse, factored by SuperLU
+        dc = st.sparse.solve(Hcc, lam, bc)
+    else:
+        schur_kernels.add_damped_camera_blocks(S, Hcc, float(lam))  # S += blockdiag(Hcc damped)
+        _, dc, info = scipy.linalg.lapack.dposv(S, bc)  # Cholesky on the upper triangle (no condition estimate)
+        if info != 0:  # not positive definite (or invalid input)
+            dc = np.linalg.lstsq(S, bc, rcond=None)[0]
     dp = st.back_substitute(W, V, gp, dc)
     return dc.reshape(-1, 6), dp
 

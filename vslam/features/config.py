@@ -4,12 +4,13 @@ Each stage takes its own frozen dataclass; defaults are the values used on KITTI
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from vslam.errors import ConfigError
 from vslam.param import param
 
 DETECTORS = ("orb", "sift", "akaze", "brisk", "gftt_orb")
+SUBPIXEL_MODES = ("auto", "off", "cornersubpix", "parabola")
 
 
 @dataclass(frozen=True)
@@ -38,10 +39,13 @@ class FeatureConfig:
     brisk_threshold: int = param(20, "BRISK AGAST threshold")
     gftt_quality: float = param(0.001, "Shi-Tomasi quality level (gftt_orb)")
     gftt_min_distance: float = param(8.0, "minimum distance between Shi-Tomasi corners in pixels (gftt_orb)")
-    # issue #24 candidate (off while measured): cornersubpix keeps cv2.cornerSubPix's shift only within half a pixel
-    # of the FAST corner (a FAST corner is not always a gradient-orthogonal corner); parabola interpolates the
-    # Shi-Tomasi response's peak around it (at most half a pixel by construction).
-    subpixel: str = param("off", "ORB: refine each FAST corner to sub-pixel accuracy on its pyramid level: off, cornersubpix (cv2.cornerSubPix) or parabola (peak of the Shi-Tomasi response, a parabola per axis)")
+    # issue #24 item 3: cornersubpix keeps cv2.cornerSubPix's shift only within half a pixel of the FAST corner (a
+    # FAST corner is not always a gradient-orthogonal corner); parabola interpolates the Shi-Tomasi response's peak
+    # around it (at most half a pixel by construction). `auto` (the default) is parabola for stereo and RGB-D (it
+    # improved every real stereo and RGB-D row: benchmarks/RESULTS.md, "issue #24 item 3") and off for monocular (it
+    # made KITTI 07 mono worse on four start frames of five) and the inertial sensors (stereo-inertial MH_01 80:
+    # 0.00288 -> 0.00300 m, worse at each of 8 keyframe ratios tried); :meth:`FeatureConfig.for_sensor` resolves it.
+    subpixel: str = param("auto", "ORB: refine each FAST corner to sub-pixel accuracy on its pyramid level: auto (parabola for stereo and RGB-D, off for monocular and the inertial sensors), off, cornersubpix (cv2.cornerSubPix) or parabola (peak of the Shi-Tomasi response, a parabola per axis)")
     subpixel_window: int = param(2, "half side of cornerSubPix's search window, level pixels", bounds="[1, 15]")
     subpixel_min_octave: int = param(0, "only keypoints of pyramid levels from this one up are refined (0: every level)", bounds="[0, 31]")
     subpixel_max_octave: int = param(31, "only keypoints of pyramid levels up to this one are refined (0: the full-resolution level only)", bounds="[0, 31]")
@@ -51,8 +55,8 @@ class FeatureConfig:
             raise ConfigError(f"features.detector={self.detector!r} is unknown; use one of {DETECTORS}")
         if str(self.subpixel).lower() == "false":  # YAML reads an unquoted `off` (or `false`) as a boolean
             object.__setattr__(self, "subpixel", "off")
-        if self.subpixel not in ("off", "cornersubpix", "parabola"):
-            raise ConfigError(f"features.subpixel={self.subpixel!r} must be off, cornersubpix or parabola")
+        if self.subpixel not in SUBPIXEL_MODES:
+            raise ConfigError(f"features.subpixel={self.subpixel!r} must be one of {', '.join(SUBPIXEL_MODES)}")
         if self.n_features < 1:
             raise ConfigError(f"features.n_features={self.n_features} must be >= 1")
         if not self.scale_factor > 1.0:
@@ -63,6 +67,15 @@ class FeatureConfig:
             raise ConfigError(f"features.cell_size={self.cell_size} must be >= 4 pixels")
         if self.patch_size % 2 == 0 or self.patch_size < 7:
             raise ConfigError(f"features.patch_size={self.patch_size} must be odd and >= 7")
+
+    def for_sensor(self, sensor: str) -> FeatureConfig:
+        """This configuration with ``subpixel: auto`` resolved for ``sensor`` (``mono``, ``stereo``,
+        ``rgbd``, or one of them with ``-inertial``): ``parabola`` for stereo and RGB-D, ``off`` for
+        monocular and the inertial sensors. A detector given an unresolved ``auto`` refines nothing."""
+        if self.subpixel != "auto":
+            return self
+        mode = "parabola" if sensor in ("stereo", "rgbd") else "off"
+        return replace(self, subpixel=mode)
 
 
 @dataclass(frozen=True)

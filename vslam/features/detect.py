@@ -182,7 +182,7 @@ class OrbGridDetector:
     def _subpixel(self, img: np.ndarray, x: np.ndarray, y: np.ndarray, lvl: int) -> tuple[np.ndarray, np.ndarray]:
         """Level-``lvl`` corner positions: the integer FAST ones, or refined (``features.subpixel``)."""
         c = self.config
-        if c.subpixel == "off" or not c.subpixel_min_octave <= lvl <= c.subpixel_max_octave:
+        if c.subpixel in ("off", "auto") or not c.subpixel_min_octave <= lvl <= c.subpixel_max_octave:
             return x, y
         if c.subpixel == "cornersubpix":
             return subpixel_corners(img, x, y, c.subpixel_window)

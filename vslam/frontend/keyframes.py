@@ -156,14 +156,15 @@ def revisit_reference(map_: Map, local_kfs: list[int], point_ids: np.ndarray, la
 
 def decide_keyframe(cfg: FrontendConfig, sensor: str, obs: Observation, T_world_cam: np.ndarray, ref: KeyFrame | None,
                     frames_since_kf: int, n_ref_tracked: int, n_inliers: int, dense_wants: bool,
-                    revisiting: bool = False) -> bool:
+                    revisiting: bool = False, inertial: bool = False) -> bool:
     """ORB-SLAM's NeedNewKeyFrame (:func:`vslam.frontend.keyframe_policy.need_keyframe`) with the
     forcing reasons: KLT tracks running out, few close tracked points for depth sensors (ORB-SLAM2
     "close points"), a frame posed by dense alignment (``dense_wants``). ``n_ref_tracked``: map
     points the first frame after the reference keyframe tracked (it factors out the detector's
     frame-to-frame repeatability). ``revisiting`` (the reference is an old keyframe,
     :func:`revisit_reference`): elapsed frames alone (``keyframes.max_frames``) do not make a
-    keyframe, as in ORB-SLAM where they only permit one when tracking is weak."""
+    keyframe, as in ORB-SLAM where they only permit one when tracking is weak. ``inertial`` (an
+    initialized IMU predicts the frames): depth sensors use ``keyframes.tracked_ratio_inertial``."""
     n_tracked = int((obs.point_ids >= 0).sum())
     force = False
     if cfg.association == "track":
@@ -175,6 +176,8 @@ def decide_keyframe(cfg: FrontendConfig, sensor: str, obs: Observation, T_world_
     force |= dense_wants
     moved = float(np.linalg.norm(T_world_cam[:3, 3] - ref.T_world_cam[:3, 3])) if ref is not None else 0.0
     ratio = cfg.keyframes.tracked_ratio_mono if sensor == "mono" else cfg.keyframes.tracked_ratio
+    if inertial and sensor != "mono" and cfg.keyframes.tracked_ratio_inertial > 0:
+        ratio = cfg.keyframes.tracked_ratio_inertial
     since = min(frames_since_kf, cfg.keyframes.max_frames - 1) if revisiting else frames_since_kf
     is_kf = need_keyframe(cfg, since, n_tracked, n_ref_tracked, n_inliers, moved, force, ratio)
     log.debug("%d inliers, %d/%d of the reference keyframe's points, force %s -> keyframe %s",

@@ -321,7 +321,8 @@ class Tracker:
         if st.frames_since_kf == 1 or st.kf_ref_tracked is None:
             st.kf_ref_tracked = int((obs.point_ids >= 0).sum())
         is_kf = decide_keyframe(cfg, self.sensor, obs, T_world_cam, self.map.keyframes.get(st.ref_kf),
-                                st.frames_since_kf, st.kf_ref_tracked, n_inl, self.dense.wants_keyframe(), st.revisiting)
+                                st.frames_since_kf, st.kf_ref_tracked, n_inl, self.dense.wants_keyframe(), st.revisiting,
+                                inertial=self.imu_predictor is not None and self.imu_predictor.active)
         if is_kf:
             self._insert_keyframe(frame, gray, obs, T_world_cam)
         else:

@@ -8,7 +8,8 @@ Sim(3) for monocular sessions, Strasdat et al. RSS 2010). Nodes: every good keyf
 map. Edges ``(i, j, T_i_j)``:
 
 * *shape*: each keyframe to the previous one of its session, and covisibility links of weight
-  >= ``covisibility_weight`` (within and across the welded seams), at their relative pose in the
+  >= ``covisibility_weight`` (within and across the welded seams; each keyframe's ``max_covisible``
+  strongest, :func:`covisibility_edges`, so the graph stays O(K)), at their relative pose in the
   merged map (what the tree merges and their local BAs made);
 * *overlaps*: for every verified overlap ``(a, b)`` of the session graph
   (:func:`vslam.multisession.overlap.verify_pair`), each agreeing seam keyframe pair ``(k_a, k_b)``: ``T_i_j = P_i^-1 P_j`` with
@@ -21,7 +22,14 @@ map. Edges ``(i, j, T_i_j)``:
 The component's first keyframe is fixed (the gauge; its scale too, monocular). Keyframes and points
 move by their node's correction (:func:`vslam.loop.essential_graph.write_back_corrections`, per
 segment). **Global BA**: :meth:`vslam.backend.local_mapping.LocalMapper.global_ba` over every
-keyframe and point (each segment's first keyframe fixed; two for monocular).
+keyframe and point (each segment's first keyframe fixed; two for monocular), with the settings of
+``backend.global_ba``: its reduced camera system is dense (Cholesky, ``O(K^3)`` per LM step) up to
+``sparse_min_cameras`` (200) variable keyframes and block-sparse (SuperLU) above, unless more than a
+quarter of the keyframe pairs share points (:mod:`vslam.backend.schur_sparse`). On the synthetic
+fleet every session sees the same room, 43 % of the pairs do at 32 sessions, and the dense path is
+the faster one (its Cholesky is 18 % of the BA there; the Schur sums are the rest). The pose graph's
+covisibility edges grow as ``K^2`` there, and its time is erratic (1-123 s wall at 32 sessions):
+benchmarks/RESULTS.md, issue #26 round 3.
 
 Measured (benchmarks/RESULTS.md, issue #26): on the synthetic fleet and on 7-Scenes the global BA
 lands on the same poses with or without the pose graph (ATE equal to 4 digits): the tree merges
@@ -68,8 +76,21 @@ def overlap_edges(sessions: dict[str, tuple[np.ndarray, int]], before: dict[str,
     return out
 
 
+def covisibility_edges(slam_map, index: dict[int, int], min_weight: int, per_keyframe: int) -> list[tuple[int, int]]:
+    """``(a, b)`` with ``a < b``: each keyframe's ``per_keyframe`` strongest covisibility links of
+    weight >= ``min_weight`` (either end's choice keeps a link), so the graph has O(K) edges. All
+    links of that weight grew as K^2 on the synthetic fleet (one room: 11.4 k edges at 260
+    keyframes), and the pose graph's solve with them (benchmarks/RESULTS.md, issue #26)."""
+    keep: set[tuple[int, int]] = set()
+    for a in index:
+        strong = [(w, b) for b, w in slam_map.covisibility.get(a, {}).items() if b in index and b != a and w >= min_weight]
+        for w, b in sorted(strong, key=lambda x: (-x[0], x[1]))[:per_keyframe]:
+            keep.add((min(a, b), max(a, b)))
+    return sorted(keep)
+
+
 def session_pose_graph(slam_map, sessions: dict[str, tuple[np.ndarray, int]], before: dict[str, dict[int, np.ndarray]],
-                       overlaps: list[dict], sensor: str, covisibility_weight: int = 100,
+                       overlaps: list[dict], sensor: str, covisibility_weight: int = 100, max_covisible: int = 10,
                        max_residual_m: float = 0.3, max_residual_deg: float = 10.0) -> dict:
     """Optimize the merged map of ``sessions`` (``{name: (S, offset)}``) with the pose graph of the
     module docstring and move its keyframes and points; returns its statistics."""
@@ -87,11 +108,9 @@ def session_pose_graph(slam_map, sessions: dict[str, tuple[np.ndarray, int]], be
         for p, q in zip(ids, ids[1:]):
             edges.append((index[p], index[q], inv_se3(T[index[p]]) @ T[index[q]]))
             kinds["sequence"] += 1
-    for a in nodes:
-        for b, w in slam_map.covisibility.get(a, {}).items():
-            if b > a and b in index and w >= covisibility_weight:
-                edges.append((index[a], index[b], inv_se3(T[index[a]]) @ T[index[b]]))
-                kinds["covisibility"] += 1
+    for a, b in covisibility_edges(slam_map, index, covisibility_weight, max_covisible):
+        edges.append((index[a], index[b], inv_se3(T[index[a]]) @ T[index[b]]))
+        kinds["covisibility"] += 1
     scale = 1.0
     if sensor == "mono":  # metres are unknown: the thresholds relative to the map's extent (5 m room = 1)
         c = T[:, :3, 3]

@@ -10,7 +10,7 @@ from typing import Any, Callable
 import numpy as np
 
 from vslam.multisession.executor import TaskExecutor
-from vslam.multisession.sessions import SessionSpec, parse_inputs, reusable, reused_record, run_session
+from vslam.multisession.sessions import SessionSpec, parse_inputs, reusable, reused_record, run_session, session_prefetch
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,8 @@ def _run_sessions(ex: TaskExecutor, specs: list[SessionSpec], root: Path, config
             records[i] = reused_record(s, root / s.name, stats)
         else:
             todo.append(i)
-    done = ex.map(run_session, [(specs[i], str(root / specs[i].name), config, overrides) for i in todo],
+    prefetch = session_prefetch(ex.kind, ex.workers)
+    done = ex.map(run_session, [(specs[i], str(root / specs[i].name), config, overrides, prefetch) for i in todo],
                   _failed_session)
     for i, r in zip(todo, done):
         records[i] = r
@@ -169,7 +170,7 @@ def map_sessions(inputs: list[str] | list[SessionSpec], output: str | Path, exec
     still runs), for measuring what it does."""
     from vslam.outputs import open_run_dir
     from vslam.multisession.overlap import candidate_pairs
-    from vslam.multisession.tree_merge import Cluster, merge_rounds
+    from vslam.multisession.tree_merge import Cluster, merge_tree
 
     say = on_progress or (lambda msg: log.info("%s", msg))
     specs = inputs if inputs and isinstance(inputs[0], SessionSpec) else parse_inputs(list(inputs), sensor)
@@ -212,7 +213,7 @@ def map_sessions(inputs: list[str] | list[SessionSpec], output: str | Path, exec
             t0 = time.perf_counter()
             keyframes = {r["name"]: int(r.get("keyframes") or 0) for r in records}
             clusters = kept + [Cluster(str(ok[n]), {n: (np.eye(4), 0)}, keyframes[n]) for n in names if n not in old]
-            clusters, failed_merges, rounds = merge_rounds(clusters, edges, ex.map, work, config, tuple(overrides), say)
+            clusters, failed_merges, rounds = merge_tree(clusters, edges, ex, work, config, tuple(overrides), say)
             timing["merge_s"] = round(time.perf_counter() - t0, 2)
             _in_input_order(clusters, names)
             for stale in ("trajectories", "components"):

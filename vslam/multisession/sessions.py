@@ -16,6 +16,7 @@ a ``map/``) is reused instead (:func:`reusable`): a rerun resumes where the last
 from __future__ import annotations
 
 import json
+import os
 import re
 import time
 from dataclasses import asdict, dataclass
@@ -161,9 +162,12 @@ def reused_record(spec: SessionSpec, folder: Path, stats: dict) -> dict:
             "error": None, **_summary(stats)}
 
 
-def run_session(spec: SessionSpec, folder: str, config: str | None = None, overrides: tuple[str, ...] = ()) -> dict:
+def run_session(spec: SessionSpec, folder: str, config: str | None = None, overrides: tuple[str, ...] = (),
+                prefetch: str = "thread") -> dict:
     """Run one session into ``folder`` (or reuse a finished run there); never raises: a failure is
-    the record's ``status: failed`` and ``error``."""
+    the record's ``status: failed`` and ``error``. ``prefetch``: ``thread`` (frames decoded and
+    detected in a second thread: a task then keeps more than one core busy) or ``none``
+    (:func:`session_prefetch`)."""
     from vslam.api import run_path
 
     out = Path(folder)
@@ -175,7 +179,7 @@ def run_session(spec: SessionSpec, folder: str, config: str | None = None, overr
     try:
         result = run_path(spec.data, out, sensor=spec.sensor, config=config, overrides=list(overrides),
                           max_frames=spec.max_frames, start_frame=spec.start_frame, camera=spec.camera,
-                          prefetch="thread")
+                          prefetch=prefetch)
         stats = dict(result.stats)
         if not (out / "map" / "map.json").is_file() or not stats.get("keyframes"):
             raise ConfigError(f"{spec.data}: the run made no map (no keyframes)")
@@ -186,6 +190,16 @@ def run_session(spec: SessionSpec, folder: str, config: str | None = None, overr
                 "task_s": round(time.perf_counter() - t0, 2)}
     return {**record, "status": "ok", "reused": False, "error": None, **_summary(stats),
             "task_s": round(time.perf_counter() - t0, 2)}
+
+
+def session_prefetch(kind: str, workers: int, cpus: int | None = None) -> str:
+    """The prefetch mode of a session task: ``thread`` only where each task has a second core to
+    itself (local executor, ``2 x workers <= cpus``); otherwise ``none``, so that ``workers`` tasks
+    side by side do not fight over the cores with their prefetch threads (a Ray task asks for one
+    CPU). Measured on 2 cores, 16 sessions (benchmarks/RESULTS.md, issue #26): with their prefetch
+    threads 2 tasks side by side tracked in 0.73x the sequential time instead of about 0.6x."""
+    cpus = cpus if cpus is not None else (os.cpu_count() or 1)
+    return "thread" if kind == "local" and 2 * max(workers, 1) <= cpus else "none"
 
 
 def previous_sessions(result_dir: str | Path) -> list[SessionSpec]:

@@ -25,6 +25,12 @@ Each **round** (:func:`merge_rounds`):
 
 It ends when no two clusters are linked. The one global step (pose graph over every overlap, global
 BA) is :mod:`vslam.multisession.global_opt`, once per component on the final map.
+
+:func:`merge_tree` (what ``vslam map`` runs) makes the same merges without the barrier between
+rounds: it plans every round first (:func:`plan_tree`: a merged cluster's keyframes are the sum of
+its two), then starts each merge as soon as its two clusters exist (the one with the longest chain
+of merges still to follow first). A merge's inputs, orientation and folder are those of its round,
+so the maps are the rounds' whatever the timing; after a failed merge it goes on round by round.
 """
 from __future__ import annotations
 
@@ -158,29 +164,66 @@ def _joined(a: Cluster, b: Cluster, rec: dict, folder: str) -> Cluster:
     return Cluster(folder, sessions, int(rec["keyframes"]), True, a.merges + b.merges)
 
 
+def _oriented(clusters: list, i: int, j: int) -> tuple[int, int]:
+    """``(a, b)`` of a pair: B (merged into A) is the one with fewer keyframes (ties: the later)."""
+    return (i, j) if (clusters[i].keyframes, -i) >= (clusters[j].keyframes, -j) else (j, i)
+
+
+def _task_args(a: Cluster, b: Cluster, folder: str, edges: list[dict], config: str | None,
+               overrides: tuple[str, ...]) -> tuple:
+    return (a.folder, b.folder, folder, config, tuple(overrides), seam_keyframes(b, a, edges))
+
+
+def _step(ca: Cluster, cb: Cluster, via: dict, rec: dict, folder: str) -> tuple[Cluster | None, dict]:
+    """A merge's record in ``rounds`` and, if it succeeded, the joined cluster."""
+    step = {"a": ca.names, "b": cb.names, "via": [via["a"], via["b"]],
+            **{k: v for k, v in rec.items() if k not in ("S_a_b",)}}
+    if not rec.get("ok"):
+        return None, step
+    new = _joined(ca, cb, rec, folder)
+    new.merges.append({k: step[k] for k in ("a", "b", "via", "seam_keyframes", "alignment_inliers",
+                                            "fused_points", "scale", "task_s")})
+    return new, step
+
+
+def _report(r: int, ca: Cluster, cb: Cluster, rec: dict, edges: list[dict], failed: list[dict],
+            say: Callable[[str], None]) -> None:
+    """Say how a merge went; a failed one drops the overlaps between its two clusters (``failed``)."""
+    if rec.get("ok"):
+        say(f"merge round {r}: {'+'.join(ca.names)} <- {'+'.join(cb.names)}: "
+            f"{rec['seam_keyframes']} seam keyframes, {rec['alignment_inliers']} inliers")
+        return
+    between = [e for e in edges if {e["a"], e["b"]} <= set(ca.names) | set(cb.names)
+               and not ({e["a"], e["b"]} <= set(ca.names) or {e["a"], e["b"]} <= set(cb.names))]
+    for e in between:
+        edges.remove(e)
+        failed.append({"a": e["a"], "b": e["b"], "error": rec.get("error")})
+    log.warning("merging %s with %s failed: %s; their overlaps are dropped", ca.names, cb.names, rec.get("error"))
+    say(f"merge round {r}: {'+'.join(ca.names)} / {'+'.join(cb.names)} failed: {rec.get('error')}")
+
+
 def merge_rounds(clusters: list[Cluster], edges: list[dict], run_tasks: Callable, work: Path,
                  config: str | None = None, overrides: tuple[str, ...] = (),
-                 say: Callable[[str], None] = lambda m: None) -> tuple[list[Cluster], list[dict], list[dict]]:
+                 say: Callable[[str], None] = lambda m: None, failed: list[dict] | None = None,
+                 rounds: list[dict] | None = None) -> tuple[list[Cluster], list[dict], list[dict]]:
     """Merge linked clusters round by round (module docstring). ``run_tasks(fn, args_list,
     on_error)`` runs the round's tasks (an executor's ``map``). Returns ``(clusters, failed
     overlaps, rounds)``: the final clusters (one per component), the overlaps dropped with their
-    error, and per round its pairs and wall time."""
+    error, and per round its pairs and wall time. ``failed`` / ``rounds``: those of the rounds
+    already done (the rounds go on from there; ``edges`` is then their edges, failures dropped)."""
     clusters = list(clusters)
     edges = list(edges)
-    failed: list[dict] = []
-    rounds: list[dict] = []
+    failed = list(failed or [])
+    rounds = list(rounds or [])
     work.mkdir(parents=True, exist_ok=True)
     while True:
         pairs = plan_round(clusters, edges)
         if not pairs:
             break
         r = len(rounds)
-        args, order = [], []
-        for k, (i, j, _) in enumerate(pairs):
-            a, b = (i, j) if (clusters[i].keyframes, -i) >= (clusters[j].keyframes, -j) else (j, i)
-            order.append((a, b))
-            args.append((clusters[a].folder, clusters[b].folder, str(work / f"r{r}_{k}"), config, tuple(overrides),
-                         seam_keyframes(clusters[b], clusters[a], edges)))
+        order = [_oriented(clusters, i, j) for i, j, _ in pairs]
+        args = [_task_args(clusters[a], clusters[b], str(work / f"r{r}_{k}"), edges, config, overrides)
+                for k, (a, b) in enumerate(order)]
         t0 = time.perf_counter()
         results = run_tasks(merge_task, args, _failed_merge)
         wall = time.perf_counter() - t0
@@ -188,27 +231,144 @@ def merge_rounds(clusters: list[Cluster], edges: list[dict], run_tasks: Callable
         gone: set[int] = set()
         info = []
         for (a, b), (_, _, via), arg, rec in zip(order, pairs, args, results):
-            ca, cb = clusters[a], clusters[b]
-            step = {"a": ca.names, "b": cb.names, "via": [via["a"], via["b"]],
-                    **{k: v for k, v in rec.items() if k not in ("S_a_b",)}}
+            new, step = _step(clusters[a], clusters[b], via, rec, arg[2])
             info.append(step)
-            if rec.get("ok"):
-                new = _joined(ca, cb, rec, arg[2])
-                new.merges.append({k: step[k] for k in ("a", "b", "via", "seam_keyframes", "alignment_inliers",
-                                                        "fused_points", "scale", "task_s")})
+            _report(r, clusters[a], clusters[b], rec, edges, failed, say)
+            if new is not None:
                 merged[a] = new
                 gone.add(b)
-                say(f"merge round {r}: {'+'.join(ca.names)} <- {'+'.join(cb.names)}: "
-                    f"{rec['seam_keyframes']} seam keyframes, {rec['alignment_inliers']} inliers")
-            else:
-                between = [e for e in edges if {e["a"], e["b"]} <= set(ca.names) | set(cb.names)
-                           and not ({e["a"], e["b"]} <= set(ca.names) or {e["a"], e["b"]} <= set(cb.names))]
-                for e in between:
-                    edges.remove(e)
-                    failed.append({"a": e["a"], "b": e["b"], "error": rec.get("error")})
-                log.warning("merging %s with %s failed: %s; their overlaps are dropped", ca.names, cb.names,
-                            rec.get("error"))
-                say(f"merge round {r}: {'+'.join(ca.names)} / {'+'.join(cb.names)} failed: {rec.get('error')}")
         clusters = [merged.get(i, c) for i, c in enumerate(clusters) if i not in gone]
         rounds.append({"round": r, "pairs": len(pairs), "wall_s": round(wall, 2), "merges": info})
     return clusters, failed, rounds
+
+
+@dataclass(eq=False)
+class PlannedMerge:
+    """One merge of :func:`plan_tree`: the ``k``-th pair of round ``r``, cluster ``b`` merged into
+    ``a`` giving ``out`` (clusters named by node ids: the inputs ``0..n-1``, then one per merge)."""
+
+    r: int
+    k: int
+    a: int
+    b: int
+    out: int
+    via: dict
+
+
+def plan_tree(clusters: list[Cluster], edges: list[dict]) -> tuple[list[list[int]], list[list[PlannedMerge]], dict]:
+    """:func:`merge_rounds` simulated on placeholders, every merge succeeding: a merged cluster has
+    the sessions of both and ``a.keyframes + b.keyframes`` keyframes (the weld appends every keyframe
+    of B to A, :func:`vslam.map.append.append_map`, and culling only flags keyframes ``bad``). Returns
+    ``(nodes, plan, keyframes)``: per round the node ids of its clusters in order, then the final ones
+    (``len(plan) + 1`` lists); per round its merges; each node's keyframe count."""
+    nodes = list(range(len(clusters)))
+    keyframes = {i: c.keyframes for i, c in enumerate(clusters)}
+    names = {i: list(c.sessions) for i, c in enumerate(clusters)}
+    states: list[list[int]] = [nodes]
+    plan: list[list[PlannedMerge]] = []
+    eye = np.eye(4)
+    while True:
+        placeholders = [Cluster("", dict.fromkeys(names[v], (eye, 0)), keyframes[v]) for v in nodes]
+        pairs = plan_round(placeholders, edges)
+        if not pairs:
+            return states, plan, keyframes
+        merges, merged, gone = [], {}, set()
+        for k, (i, j, via) in enumerate(pairs):
+            a, b = _oriented(placeholders, i, j)
+            m = PlannedMerge(len(plan), k, nodes[a], nodes[b], len(clusters) + sum(map(len, plan)) + k, via)
+            keyframes[m.out] = keyframes[m.a] + keyframes[m.b]
+            names[m.out] = names[m.a] + names[m.b]
+            merged[a] = m.out
+            gone.add(b)
+            merges.append(m)
+        nodes = [merged.get(i, v) for i, v in enumerate(nodes) if i not in gone]
+        states.append(nodes)
+        plan.append(merges)
+
+
+def _priorities(plan: list[list[PlannedMerge]]) -> list[PlannedMerge]:
+    """The merges, most urgent first: the longest chain of merges from each to the end of its tree
+    (its bottom level, every merge counted as one), then plan order. Replaying the 16-arc fleet's
+    measured merge times on 2 workers: 7.2-7.4 s, against 7.4-7.7 s with the chain weighted by the
+    merges' keyframes, 7.3-7.5 s by their seam keyframes, 7.6-7.8 s in plan order (issue #26)."""
+    consumer = {n: m for ms in plan for m in ms for n in (m.a, m.b)}
+    level: dict[int, int] = {}
+    for ms in reversed(plan):
+        for m in ms:
+            after = consumer.get(m.out)
+            level[m.out] = 1 + (level[after.out] if after else 0)
+    return sorted((m for ms in plan for m in ms), key=lambda m: (-level[m.out], m.r, m.k))
+
+
+def _run_plan(ex, plan: list[list[PlannedMerge]], keyframes: dict, real: dict[int, Cluster], edges: list[dict],
+              work: Path, config: str | None, overrides: tuple[str, ...]) -> tuple[dict, int | None]:
+    """Run the planned merges on ``ex`` as soon as both inputs exist (at most ``ex.slots`` at once);
+    ``real`` gains each merged cluster. Once a merge of round ``r`` fails (or its map's keyframes
+    differ from the plan's), nothing after round ``r`` is started. Returns ``({(r, k): (rec, step,
+    submitted, finished)}, the first such round or None)``."""
+    todo = _priorities(plan)
+    slots = ex.slots
+    running: dict = {}
+    done: dict[tuple[int, int], tuple] = {}
+    stop: int | None = None
+    while True:
+        for m in list(todo):
+            if len(running) >= slots:
+                break
+            if (stop is None or m.r <= stop) and m.a in real and m.b in real:
+                todo.remove(m)
+                args = _task_args(real[m.a], real[m.b], str(work / f"r{m.r}_{m.k}"), edges, config, overrides)
+                t0 = time.perf_counter()
+                running[ex.submit(merge_task, args, _failed_merge)] = (m, args, t0)
+        if not running:
+            return done, stop
+        task, rec = ex.wait_any(list(running))
+        m, args, t0 = running.pop(task)
+        new, step = _step(real[m.a], real[m.b], m.via, rec, args[2])
+        done[(m.r, m.k)] = (rec, step, t0, time.perf_counter())
+        if new is not None:
+            real[m.out] = new
+            if new.keyframes != keyframes[m.out]:
+                log.warning("merge r%d_%d made %d keyframes where the plan said %d: going on round by round",
+                            m.r, m.k, new.keyframes, keyframes[m.out])
+        if new is None or new.keyframes != keyframes[m.out]:
+            stop = m.r if stop is None else min(stop, m.r)
+
+
+def merge_tree(clusters: list[Cluster], edges: list[dict], ex, work: Path, config: str | None = None,
+               overrides: tuple[str, ...] = (), say: Callable[[str], None] = lambda m: None
+               ) -> tuple[list[Cluster], list[dict], list[dict]]:
+    """:func:`merge_rounds`'s merges without its barrier between rounds: the rounds are planned
+    first (:func:`plan_tree`), then each merge runs on the executor ``ex`` (``submit`` /
+    ``wait_any`` / ``slots``, :class:`vslam.multisession.executor.TaskExecutor`) as soon as the two
+    clusters it needs exist, with the inputs, orientation, seam keyframes and output folder the
+    rounds would give it: the same maps whatever the workers or the timing. When a merge of round
+    ``r`` fails, the rest of round ``r`` still runs, what was started after it is dropped, and
+    :func:`merge_rounds` goes on from the state after round ``r`` (as if it had run from the start).
+    Returns the same ``(clusters, failed, rounds)``; a round's ``wall_s`` is here from its first
+    merge's start to its last merge's end (rounds overlap in time), ``start_s`` its first merge's
+    start after the stage's."""
+    t_start = time.perf_counter()
+    edges = list(edges)
+    work.mkdir(parents=True, exist_ok=True)
+    states, plan, keyframes = plan_tree(clusters, edges)
+    real = dict(enumerate(clusters))
+    done, stop = _run_plan(ex, plan, keyframes, real, edges, work, config, tuple(overrides))
+    failed: list[dict] = []
+    rounds: list[dict] = []
+    for r in range(len(plan) if stop is None else stop + 1):
+        recs = [done[(r, m.k)] for m in plan[r]]
+        for m, (rec, _, _, _) in zip(plan[r], recs):
+            _report(r, real[m.a], real[m.b], rec, edges, failed, say)
+        t0, t1 = min(x[2] for x in recs), max(x[3] for x in recs)
+        rounds.append({"round": r, "pairs": len(plan[r]), "wall_s": round(t1 - t0, 2),
+                       "start_s": round(t0 - t_start, 2), "merges": [x[1] for x in recs]})
+    if stop is None:
+        return [real[v] for v in states[-1]], failed, rounds
+    nodes, merged, gone = states[stop], {}, set()
+    for m in plan[stop]:
+        if done[(stop, m.k)][0].get("ok"):
+            merged[nodes.index(m.a)] = m.out
+            gone.add(nodes.index(m.b))
+    after = [real[merged.get(i, v)] for i, v in enumerate(nodes) if i not in gone]
+    return merge_rounds(after, edges, ex.map, work, config, overrides, say, failed, rounds)
