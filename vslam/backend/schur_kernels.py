@@ -221,6 +221,24 @@ def linearize(R, cam, pt, X_cam, r, chi2, w_rows, use_huber, huber, baseline, di
 
 
 @njit(cache=True, nogil=True)
+def point_terms(Hcp, V, gp, pt_obs, obs_var, q0, k, p, Y, bc):  # pragma: no cover - compiled
+    """Point ``p``'s part of the reduced system's right-hand side and its scratch: for each of its
+    ``k`` free observations ``a`` (``pt_obs[q0 + a]``), ``Y[a] = (W_a V_p)^T`` and
+    ``bc -= W_a V_p gp_p`` (:func:`reduced_camera_system`; shared with the block-sparse
+    :func:`vslam.backend.schur_sparse.reduced_camera_blocks`)."""
+    g0, g1, g2 = gp[0, p], gp[1, p], gp[2, p]
+    for a in range(k):
+        m = pt_obs[q0 + a]
+        r6 = 6 * obs_var[m]
+        for l in range(3):  # Y[a, l, :] = sum_j V[j, l] W[:, j]
+            v0, v1, v2 = V[0, l, p], V[1, l, p], V[2, l, p]
+            for i in range(6):
+                Y[a, l, i] = Hcp[m, 0, i] * v0 + Hcp[m, 1, i] * v1 + Hcp[m, 2, i] * v2
+        for i in range(6):
+            bc[r6 + i] -= Y[a, 0, i] * g0 + Y[a, 1, i] * g1 + Y[a, 2, i] * g2
+
+
+@njit(cache=True, nogil=True)
 def reduced_camera_system(Hcp, V, gp, gc, pt_ptr, pt_obs, obs_var, S, bc, Y):  # pragma: no cover - compiled
     """The point-eliminated camera system, summed per point over its observation pairs.
 
@@ -241,16 +259,7 @@ def reduced_camera_system(Hcp, V, gp, gc, pt_ptr, pt_obs, obs_var, S, bc, Y):  #
         k = pt_ptr[p + 1] - q0
         if k == 0:
             continue
-        g0, g1, g2 = gp[0, p], gp[1, p], gp[2, p]
-        for a in range(k):
-            m = pt_obs[q0 + a]
-            r6 = 6 * obs_var[m]
-            for l in range(3):  # Y[a, l, :] = sum_j V[j, l] W[:, j]
-                v0, v1, v2 = V[0, l, p], V[1, l, p], V[2, l, p]
-                for i in range(6):
-                    Y[a, l, i] = Hcp[m, 0, i] * v0 + Hcp[m, 1, i] * v1 + Hcp[m, 2, i] * v2
-            for i in range(6):
-                bc[r6 + i] -= Y[a, 0, i] * g0 + Y[a, 1, i] * g1 + Y[a, 2, i] * g2
+        point_terms(Hcp, V, gp, pt_obs, obs_var, q0, k, p, Y, bc)
         for a in range(k):
             ra = 6 * obs_var[pt_obs[q0 + a]]
             for b in range(a, k):

@@ -25,6 +25,8 @@ import scipy.sparse
 import scipy.sparse.linalg
 from numba import njit
 
+from vslam.backend.schur_kernels import point_terms
+
 LOG = logging.getLogger(__name__)
 
 
@@ -99,16 +101,7 @@ def reduced_camera_blocks(Hcp, V, gp, gc, pt_ptr, pt_obs, obs_var, row_ptr, cols
     for p in range(pt_ptr.shape[0] - 1):
         q0 = pt_ptr[p]
         k = pt_ptr[p + 1] - q0
-        g0, g1, g2 = gp[0, p], gp[1, p], gp[2, p]
-        for a in range(k):
-            m = pt_obs[q0 + a]
-            r6 = 6 * obs_var[m]
-            for l in range(3):  # Y[a, l, :] = sum_j V[j, l] W[:, j]
-                v0, v1, v2 = V[0, l, p], V[1, l, p], V[2, l, p]
-                for i in range(6):
-                    Y[a, l, i] = Hcp[m, 0, i] * v0 + Hcp[m, 1, i] * v1 + Hcp[m, 2, i] * v2
-            for i in range(6):
-                bc[r6 + i] -= Y[a, 0, i] * g0 + Y[a, 1, i] * g1 + Y[a, 2, i] * g2
+        point_terms(Hcp, V, gp, pt_obs, obs_var, q0, k, p, Y, bc)
         for a in range(k):
             ca = obs_var[pt_obs[q0 + a]]
             for b in range(a, k):
