@@ -11,7 +11,7 @@ TEST_EXTRAS := test,dense,viz,ray,ros
 # test again on a simulated second machine: another OpenBLAS kernel, numba code for a generic x86-64
 # (no AVX2/FMA; its own cache), one OpenMP thread. `make test` runs it after the whole suite.
 PORTABLE_ENV := OPENBLAS_CORETYPE=SandyBridge NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(CURDIR)/.numba-generic OMP_NUM_THREADS=1
-PORTABLE_TESTS := $(sort $(wildcard tests/*/test_*kernels*.py)) tests/test_pinned_figures.py tests/test_determinism.py
+PORTABLE_TESTS := $(sort $(wildcard tests/*/test_*kernels*.py)) tests/backend/test_schur_sparse.py tests/test_pinned_figures.py tests/test_determinism.py
 
 .PHONY: demo test test-suite test-portable install install-test clean
 

@@ -78,3 +78,17 @@ def test_parallel_cabinet_is_bit_identical_run_to_run(shared_data, tmp_path):
     assert s1["backend"]["mode"] == "parallel" and s1["backend"]["local_ba_calls"] > 40
     assert s1["tracked"] == 58 and s1["lost"] == 0
     assert 0.0283 * 0.985 <= s1["ate_rmse"] <= 0.0283 * 1.015, s1["ate_rmse"]
+
+
+@pytest.mark.shared
+def test_parallel_process_worker_runs_the_visual_inertial_local_ba(shared_data, tmp_path):
+    """Stereo-inertial in parallel mode: the child process solves the visual-inertial local BA (the
+    job carries the IMU chain; GTSAM's preintegrations pickle) and gives the thread worker's bytes.
+    Measured on MH_01 80 frames: 21 VI local BAs and 1 full VI-BA, ATE 0.00296 m (deterministic mode
+    0.00288); before, the process worker fell back to the visual local BA."""
+    data = shared_data / "euroc_mh01_vi_80"
+    s1, t1 = _run(data, tmp_path / "p", "stereo-inertial")
+    s2, t2 = _run(data, tmp_path / "t", "stereo-inertial", "backend.parallel_worker=thread")
+    assert t1 == t2
+    assert s1["backend"]["mode"] == "parallel" and s1["backend"]["vi_ba_calls"] >= 15, s1["backend"]
+    assert s1["tracked"] == 80 and s1["ate_rmse"] <= 0.0032, s1["ate_rmse"]  # measured 0.00296 (+8 %)

@@ -22,11 +22,9 @@ proportion to the rotation rate, which a window of 1 s cannot tell from a bias),
 then holds every rotation to it. No real RGB-D + IMU data is at hand to decide otherwise.
 
 Modes: deterministic and realtime run the VI-BA where the visual BA ran (:meth:`process`); parallel
-mode with the thread worker too; with the process worker (``backend.parallel_worker=process``, the
-default of parallel mode) the preintegration objects cannot travel to the child, so the local BA
-stays visual there, velocities and biases come from tracking, and the full VI-BAs do not run for
-mono / stereo (measured on MH_01 80 frames, SE(3) ATE: mono-inertial 0.0093 m with them, its scale
-0.955 after visual local BAs of the VI-BA's map, 0.0030 m without; stereo-inertial 0.0034 / 0.0033).
+mode in its worker, a thread or a child process (``backend.parallel_worker=process``, the default of
+parallel mode: the job carries the chain, whose GTSAM preintegrations pickle, and ``T_imu_cam``, and
+the child solves it with :func:`solve_inertial_job`).
 """
 from __future__ import annotations
 
@@ -36,7 +34,7 @@ import time
 import numpy as np
 
 from vslam.backend.inertial_ba import ImuChain, InertialBAResult, inertial_bundle_adjustment
-from vslam.backend.local_mapping import LocalMapper
+from vslam.backend.local_mapping import LocalMapper, solve_job
 from vslam.backend.local_problem import segment_keyframes
 from vslam.errors import DatasetError
 from vslam.inertial import ImuBias, make_params, preintegrate
@@ -137,10 +135,25 @@ def _interval_pim(kf_i: KeyFrame, kf_j: KeyFrame, bias: np.ndarray, imu, calib, 
     return pim
 
 
+def solve_inertial_job(config, job):
+    """A local BA job's solve (in the mapper's thread, or in the parallel mode's worker): visual-inertial
+    when it carries a chain (:meth:`InertialLocalMapper._prepare`), else :func:`solve_job`; a failure
+    comes back as its message (the map stays as it is)."""
+    chain = getattr(job, "chain", None)
+    if chain is None:
+        return solve_job(config, job)
+    try:
+        return inertial_bundle_adjustment(job.problem, chain, job.T_imu_cam, config)
+    except Exception as exc:
+        return f"{type(exc).__name__}: {exc}"
+
+
 class InertialLocalMapper(LocalMapper):
     """:class:`LocalMapper` whose local BA is visual-inertial once ``inertial`` (an
     :class:`vslam.backend.inertial_mapping.InertialMapping`, set by the System) is initialized.
     ``state_listeners``: called as ``cb(kf_ids)`` after keyframe states were written."""
+
+    job_solver = staticmethod(solve_inertial_job)
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
@@ -151,14 +164,13 @@ class InertialLocalMapper(LocalMapper):
         self.counts.update({"vi_ba_calls": 0, "vi_ba_full_calls": 0})
         self.full_ba_results: list[dict] = []
         # ids of the keyframes whose stored state a VI-BA estimated (tracking anchors its inertial pose
-        # optimization on them); None when the local BA cannot be visual-inertial (process worker)
+        # optimization on them); None when the local BA cannot be visual-inertial (RGB-D)
         self.estimated: set[int] | None = None if not self._vi_local else set()
 
     @property
     def _vi_local(self) -> bool:
-        """Whether the local BA becomes visual-inertial (module docstring: not with the process worker,
-        not for RGB-D)."""
-        return not (self._parallel and self.config.parallel_worker == "process") and self.sensor != "rgbd"
+        """Whether the local BA becomes visual-inertial (module docstring: not for RGB-D)."""
+        return self.sensor != "rgbd"
 
     @property
     def active(self) -> bool:
@@ -175,6 +187,7 @@ class InertialLocalMapper(LocalMapper):
         if job is not None and self.active and self._vi_local:
             with self.lock:
                 job.chain = self._local_chain(job.problem, kf_id)
+                job.T_imu_cam = self.inertial.calib.T_imu_cam
         return job
 
     def _local_chain(self, problem, kf_id: int) -> ImuChain | None:
@@ -194,13 +207,7 @@ class InertialLocalMapper(LocalMapper):
                            cache=self._pims)
 
     def _solve(self, job):
-        chain = getattr(job, "chain", None)
-        if chain is None:
-            return super()._solve(job)
-        try:
-            return inertial_bundle_adjustment(job.problem, chain, self.inertial.calib.T_imu_cam, self.config.local)
-        except Exception as exc:  # as solve_job: the map stays as it is
-            return f"{type(exc).__name__}: {exc}"
+        return solve_inertial_job(self.config.local, job)
 
     def _finish(self, job, result):
         out = super()._finish(job, result)

@@ -115,6 +115,9 @@ class LocalMapper:
             (:class:`vslam.map.new_points.KeyframeMapping`); None: none.
     """
 
+    #: the process worker's solve (parallel mode): a module-level ``f(LocalBAConfig, job)``, picklable
+    job_solver = staticmethod(solve_job)
+
     def __init__(self, map_: Map, camera: PinholeCamera, sensor: str, config: BackendConfig | None = None,
                  scale_factor: float = 1.2, lock: threading.RLock | None = None,
                  new_points: NewPointsParams | None = None) -> None:
@@ -130,7 +133,7 @@ class LocalMapper:
             import functools
 
             worker = self.config.parallel_worker
-            solve = functools.partial(solve_job, self.config.local) if worker == "process" else self._solve
+            solve = functools.partial(self.job_solver, self.config.local) if worker == "process" else self._solve
             self._queue = LaggedQueue(self._prepare, solve, self._finish, self._settled, self.config.lag_frames,
                                       "vslam-local-ba", worker=worker, warm=warm_worker)
         else:
