@@ -41,6 +41,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -293,9 +294,10 @@ def _fuse_seam(slam_map, group: list[SeamMatch], kf_offset: int, camera, sensor:
 
 
 def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: MergeOptions | None = None,
-               source_b: str = "", vocabulary=None) -> MergeResult:
+               source_b: str = "", vocabulary=None, b_keyframes: list[int] | None = None) -> MergeResult:
     """Merge ``map_b`` into ``map_a`` (modified in place; returned as ``result.map``) and its database
     into ``db_a`` (steps 1-4 of the module docstring). Raises :class:`MergeError` when no overlap is found.
+    ``b_keyframes``: place recognition on these keyframes of B only (where the seam is known: ``vslam map``).
 
     An inertial ``sensor`` verifies as its base sensor; two gravity-aligned maps (``Map.gravity_aligned``)
     align by a yaw + translation (each match's transform and the fit: both IMUs observe roll and pitch)."""
@@ -308,7 +310,9 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
     t0 = time.perf_counter()
     vocabulary = vocabulary or load_default_vocabulary()
     db_a = _database(map_a, db_a, vocabulary, cfg)
-    matches = find_seam(map_a, db_a, map_b, db_b, camera, sensor, cfg, vocabulary, options)
+    seam_b = map_b if b_keyframes is None else SimpleNamespace(points=map_b.points, keyframes={
+        k: map_b.keyframes[k] for k in sorted(b_keyframes) if k in map_b.keyframes})
+    matches = find_seam(map_a, db_a, seam_b, db_b, camera, sensor, cfg, vocabulary, options)
     if four_dof:
         for m in matches:  # each match's world change: its verified pose's yaw + translation only
             m.S_a_b = yaw_correction(map_b.keyframes[m.b_kf].T_world_cam, m.ver.T_world_cam)
@@ -320,18 +324,15 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
     strong = [m for m in matches if m.ver.n_inliers >= need]
     group = agreeing_group(strong, map_b, tol, options.agree_deg)
     if len(group) < options.min_agreeing:
-        raise MergeError(
-            f"the maps do not overlap: {len(matches)} of {len(map_b.keyframes)} keyframes of B were verified in A "
-            f"and at most {len(group)} agree on one alignment ({options.min_agreeing} needed); map B must revisit "
-            "a place mapped in A")
+        raise MergeError(f"the maps do not overlap: {len(matches)} of {len(seam_b.keyframes)} keyframes of B were "
+                         f"verified in A and at most {len(group)} agree on one alignment ({options.min_agreeing} "
+                         "needed); map B must revisit a place mapped in A")
     S, alignment = estimate_transform(group, map_a, sensor, four_dof)
     ids = {m.b_kf for m in group}
     weak = [m for m in matches if m.b_kf not in ids and _agrees(m, S, map_b, tol, options.agree_deg)]
     scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
     best = max(group, key=lambda m: m.ver.n_inliers)
-    seg_a = map_a.keyframes[best.a_kf].segment
-    seg_b = map_b.keyframes[best.b_kf].segment
-    n_a_kf = len(map_a.keyframes)
+    seg_a, seg_b = map_a.keyframes[best.a_kf].segment, map_b.keyframes[best.b_kf].segment
     appended = _append(map_a, map_b, db_a, db_b, S, vocabulary, source_b, {seg_b: seg_a})
     off = appended.kf_offset
     fused = _fuse_seam(map_a, group + weak, off, camera, sensor, cfg)
@@ -340,12 +341,12 @@ def merge_maps(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, *, options: M
             map_a.update_covisibility(k)
     cross = sum(1 for k in map_a.keyframes if k >= off for j in map_a.covisibility.get(k, {}) if j < off)
     stats: dict[str, Any] = {
-        "keyframes_a": n_a_kf, "keyframes_b": len(map_b.keyframes), "keyframes": len(map_a.keyframes),
-        "verified_b_keyframes": len(strong), "seam_keyframes": len(group), "weak_seam_keyframes": len(weak),
-        "seam": [[m.b_kf + off, m.a_kf, int(m.ver.n_inliers)] for m in group + weak],
+        "keyframes_a": len(map_a.keyframes) - len(map_b.keyframes), "keyframes_b": len(map_b.keyframes),
+        "queried_b_keyframes": len(seam_b.keyframes), "verified_b_keyframes": len(strong), "seam_keyframes": len(group),
+        "weak_seam_keyframes": len(weak), "seam": [[m.b_kf + off, m.a_kf, int(m.ver.n_inliers)] for m in group + weak],
         "S_a_b": [[round(float(x), 6) for x in row] for row in S], "scale": round(scale, 6),
         "fused_points": int(fused), "cross_links": int(cross), "place_recognition_s": round(t_pr, 2),
-        "keyframe_id_offset": off, "point_id_offset": appended.point_offset,
+        "keyframes": len(map_a.keyframes), "keyframe_id_offset": off, "point_id_offset": appended.point_offset,
         "alignment_inliers": alignment["inliers"], "alignment_correspondences": alignment["correspondences"],
         "alignment_residual": round(alignment["residual"], 6),  # RMS over the inliers, A's units (m unless mono)
         "alignment_dof": 4 if four_dof else 7 if sensor == "mono" else 6,
