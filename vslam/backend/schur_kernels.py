@@ -394,12 +394,19 @@ def add_damped_camera_blocks(S, Hcc, lam):  # pragma: no cover - compiled
     """``S[6k:6k+6, 6k:6k+6] += Hcc_k + lam diag(max(diag Hcc_k, 1e-9))`` for the camera blocks
     ``Hcc (n_c, 6, 6)`` (the Marquardt-damped ``U`` of the reduced system, as the NumPy it replaced)."""
     for k in range(Hcc.shape[0]):
-        for i in range(6):
-            for j in range(6):
-                h = Hcc[k, i, j]
-                if i == j:
-                    h = h + lam * (h if not h < 1e-9 else 1e-9)
-                S[6 * k + i, 6 * k + j] += h
+        add_damped_block(S[6 * k:6 * k + 6, 6 * k:6 * k + 6], Hcc[k], lam)
+
+
+@njit(cache=True, nogil=True)
+def add_damped_block(D, H, lam):  # pragma: no cover - compiled
+    """``D += H + lam diag(max(diag H, 1e-9))`` for one ``6 x 6`` camera block (a view of the dense
+    ``S`` here, a stored block of :mod:`vslam.backend.schur_sparse`)."""
+    for i in range(6):
+        for j in range(6):
+            h = H[i, j]
+            if i == j:
+                h = h + lam * (h if not h < 1e-9 else 1e-9)
+            D[i, j] += h
 
 
 def warm() -> None:

@@ -25,7 +25,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 from numba import njit
 
-from vslam.backend.schur_kernels import point_terms
+from vslam.backend.schur_kernels import add_damped_block, point_terms
 
 LOG = logging.getLogger(__name__)
 
@@ -130,13 +130,7 @@ def add_damped_diagonal_blocks(B, row_ptr, Hcc, lam):  # pragma: no cover - comp
     """:func:`vslam.backend.schur_kernels.add_damped_camera_blocks` on the diagonal blocks
     ``B[row_ptr[k]]`` (each row's first block)."""
     for k in range(Hcc.shape[0]):
-        s = row_ptr[k]
-        for i in range(6):
-            for j in range(6):
-                h = Hcc[k, i, j]
-                if i == j:
-                    h = h + lam * (h if not h < 1e-9 else 1e-9)
-                B[s, i, j] += h
+        add_damped_block(B[row_ptr[k]], Hcc[k], lam)
 
 
 # The sparse path stays off when the pattern stores more than this share of the n_c^2 blocks: the LU's fill then

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vslam.geometry.lie import inv_se3
+from vslam.geometry.lie import hat, inv_se3
 from vslam.geometry.pnp import _PoseResiduals
 from vslam.inertial import ImuBias
 from vslam.inertial.gtsam_values import StateWriter
@@ -89,7 +89,7 @@ class _Reprojection:
         R, t = T_cam_imu[:3, :3], T_cam_imu[:3, 3]
         Ad = np.zeros((6, 6))
         Ad[:3, :3] = Ad[3:, 3:] = R
-        Ad[3:, :3] = _skew(t) @ R
+        Ad[3:, :3] = hat(t) @ R
         self.M = -np.vstack([Ad[3:], Ad[:3]])
 
     def chi2(self, T_world_imu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -110,10 +110,6 @@ class _Reprojection:
         (self.res if huber else self.no_huber).linearize(T_cw, active, self.A, self.r, self.any_r)
         JM = self.M.T @ self.A
         return JM @ JM.T, -(JM @ self.r)
-
-
-def _skew(a: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def _robust(chi2, active, huber, chi2_max) -> float:

@@ -121,49 +121,15 @@ class TaskExecutor:
             self._tmp = None
 
     def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
-        """``[fn(*args) for args in args_list]``, run as tasks; results in the order of ``args_list``."""
-        if not args_list:
-            return []
-        if self.kind == "ray":
-            return self._map_ray(fn, args_list, on_error)
-        if self.workers == 0:
-            return [fn(*args) for args in args_list]
-        if self._pool is None:
-            self._pool = self._new_pool()
-        out: list = [None] * len(args_list)
-        futures = [self._pool.submit(fn, *args) for args in args_list]
-        broken = []
-        for i, fut in enumerate(futures):
-            try:
-                out[i] = fut.result()
-            except cf.process.BrokenProcessPool:
-                broken.append(i)
-            except Exception as exc:  # noqa: BLE001 - the task could not be sent or its result not returned
-                out[i] = on_error(args_list[i], f"the task failed: {type(exc).__name__}: {exc}")
-        if broken:  # a worker died: which task killed it is unknown, so each unfinished one runs alone
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
-            with cf.ThreadPoolExecutor(max_workers=self.workers) as threads:
-                alone = {threads.submit(_in_fresh_process, fn, args_list[i]): i for i in broken}
-                for fut in cf.as_completed(alone):
-                    i = alone[fut]
-                    try:
-                        out[i] = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - the process died or the task could not start
-                        out[i] = on_error(args_list[i], f"the task's process failed: {type(exc).__name__}: {exc}")
-        return out
-
-    def _map_ray(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
-        import ray
-
-        task = ray.remote(num_cpus=1, max_retries=0)(fn)
-        refs = [task.remote(*args) for args in args_list]
-        out: list = []
-        for args, ref in zip(args_list, refs):
-            try:
-                out.append(ray.get(ref))
-            except Exception as exc:  # noqa: BLE001 - worker died, task could not be pickled, ...
-                out.append(on_error(args, f"Ray task failed: {type(exc).__name__}: {exc}"))
+        """``[fn(*args) for args in args_list]``, run as tasks (:meth:`submit`, all at once); results in
+        the order of ``args_list``. A worker that dies breaks the local pool: the tasks it had not
+        finished run again, each alone in a fresh process, so only the one that kills its process fails."""
+        tasks = [self.submit(fn, args, on_error) for args in args_list]
+        out = []
+        for task in tasks:
+            while not task.done:
+                self.wait_any([task])
+            out.append(task.result)
         return out
 
     @property

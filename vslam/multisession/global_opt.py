@@ -49,10 +49,6 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def _rot_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def overlap_edges(sessions: dict[str, tuple[np.ndarray, int]], before: dict[str, dict[int, np.ndarray]],
                   overlaps: list[dict]) -> list[tuple[int, int, np.ndarray, str]]:
     """``(kf_i, kf_j, T_i_j, "a-b")`` in the merged map's keyframe ids, for every seam pair of every
@@ -94,7 +90,7 @@ def session_pose_graph(slam_map, sessions: dict[str, tuple[np.ndarray, int]], be
                        max_residual_m: float = 0.3, max_residual_deg: float = 10.0) -> dict:
     """Optimize the merged map of ``sessions`` (``{name: (S, offset)}``) with the pose graph of the
     module docstring and move its keyframes and points; returns its statistics."""
-    from vslam.geometry.lie import inv_se3
+    from vslam.geometry.lie import inv_se3, rotation_angle_deg
     from vslam.loop.essential_graph import write_back_corrections
     from vslam.map.pose_graph import optimize_pose_graph
 
@@ -120,7 +116,7 @@ def session_pose_graph(slam_map, sessions: dict[str, tuple[np.ndarray, int]], be
         if ki not in index or kj not in index:
             continue
         D = inv_se3(Z) @ inv_se3(T[index[ki]]) @ T[index[kj]]
-        res_m, res_deg = float(np.linalg.norm(D[:3, 3])), _rot_deg(D[:3, :3])
+        res_m, res_deg = float(np.linalg.norm(D[:3, 3])), rotation_angle_deg(D)
         if res_m > max_residual_m * scale or res_deg > max_residual_deg:
             kinds["overlap_rejected"] += 1
             continue
