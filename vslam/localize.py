@@ -42,19 +42,19 @@ def localize_path(
     camera: str | Path | None = None,
     prefetch: str = "auto",
     gt: str | Path | None = None,
+    imu: str | Path | None = None,
 ):
     """Localize the frames ``start_frame ..`` of the sequence at ``path`` in the map saved in ``map_dir``.
 
     ``config`` defaults to the mapping run's ``MAP_DIR/config.yaml`` when there is one (so features are
-    detected as they were for the map); ``overrides`` set the root Config, its ``localize.`` section
-    (:class:`vslam.config.LocalizerConfig`) included. ``prefetch`` is
-    where frames are decoded ahead (:func:`vslam.runner.run_sequence`; the poses do not depend on it).
-    ``gt`` chooses the ground truth as for :func:`vslam.api.run_path` (None: the dataset's own,
-    ``"none"``, or a trajectory file).
-    ``sensor`` may be an inertial one (``stereo-inertial`` ...; the default for a map an inertial run
-    made): its frames are read as the base sensor's and localized in the fixed map, whose world stays
-    as saved (gravity-aligned, z up, metric for a visual-inertial map: ``stats`` ``map_gravity_aligned``).
-    The localizer tracks visually; the IMU samples are not read (``stats`` ``imu_used`` false).
+    detected as they were for the map); ``overrides`` set the root Config, ``localize.`` included.
+    ``prefetch``: where frames are decoded ahead (:func:`vslam.runner.run_sequence`; the poses do not
+    depend on it). ``gt``: the ground truth as for :func:`vslam.api.run_path`.
+    An inertial ``sensor`` (the default for an inertial run's map) reads the base sensor's frames in
+    the map's world as saved (``stats`` ``map_gravity_aligned``); in a gravity-aligned map the IMU (the
+    dataset's, or ``imu``) predicts each frame and poses the frames vision cannot localize
+    (:mod:`vslam.localizer_imu`; ``stats`` ``imu_used``, ``imu_only_frames``); a visual map has no
+    gravity to integrate in: visual localization, with a warning.
     Returns a :class:`vslam.runner.RunResult` (``stats`` and the trajectory of the localized frames).
     Raises :class:`MapFormatError` for a missing or corrupt map, :class:`DatasetError` for a bad sequence.
     """
@@ -77,14 +77,16 @@ def localize_path(
         cfg = resolve_config(config, list(overrides))
         loc_cfg = cfg.localize
         slam_map, database, map_camera, metadata = open_map(map_dir)
-        inertial = _inertial_request(sensor, metadata.get("sensor"))
+        inertial = _inertial_request(sensor, metadata.get("sensor"), imu)
         ds, sensor, stop = open_sequence(path, dataset, sensor and sensor.removesuffix("-inertial"), start_frame,
                                          max_frames, preferred_sensor=metadata.get("sensor"), camera=camera)
         _check_camera(map_camera, ds.camera)
         truth = resolve_ground_truth(ds, gt, (start_frame, stop))
         # features.subpixel=auto as the mapping run resolved it (its sensor), so the keypoints match the map's
         cfg = dataclasses.replace(cfg, features=cfg.features.for_sensor(metadata.get("sensor") or sensor))
-        localizer = Localizer(slam_map, database, ds.camera, cfg, sensor=sensor, localize_config=loc_cfg)
+        imu_state = _imu_state(ds, imu, slam_map, cfg) if inertial else None
+        localizer = Localizer(slam_map, database, ds.camera, cfg, sensor=sensor, localize_config=loc_cfg,
+                              imu=imu_state)
     extra_stats = {
         "sensor": sensor,
         "dataset": ds.kind,
@@ -97,7 +99,7 @@ def localize_path(
     }
     if inertial or slam_map.gravity_aligned:
         extra_stats.update({"sensor": f"{sensor}-inertial" if inertial else sensor,
-                            "map_gravity_aligned": bool(slam_map.gravity_aligned), "imu_used": False})
+                            "map_gravity_aligned": bool(slam_map.gravity_aligned), "imu_used": imu_state is not None})
     # never into the map's folder or the sequence; locked; a previous result moved aside
     return run_sequence(
         localizer, FrameRange(ds, start_frame, stop), total=stop - start_frame, output_dir=output,
@@ -110,27 +112,52 @@ def localize_path(
 def localize_counts(stats: dict) -> dict:
     """One consistent set of counts of a localization run: ``frames``, ``localized`` (= ``tracked``
     + ``relocalized``), ``tracked`` (from the previous frame's pose), ``relocalized`` (globally, in
-    the map) and ``lost`` (= ``frames`` - ``localized``), from its ``stats``."""
-    frames, tracked, reloc = (int(stats.get(k) or 0) for k in ("frames", "tracked", "relocalizations"))
+    the map), ``imu_only`` (posed by the IMU alone, an inertial sensor) and ``lost`` (= ``frames`` -
+    ``localized`` - ``imu_only``: no pose), from its ``stats``."""
+    frames, tracked, reloc, imu = (int(stats.get(k) or 0)
+                                   for k in ("frames", "tracked", "relocalizations", "imu_only_frames"))
     return {"frames": frames, "localized": tracked + reloc, "tracked": tracked, "relocalized": reloc,
-            "lost": frames - tracked - reloc}
+            "imu_only": imu, "lost": frames - tracked - reloc - imu}
 
 
 def counts_line(stats: dict) -> str:
-    """``368/400 frames localized (92.0 %: 340 tracked + 28 relocalized), 32 lost``."""
+    """``368/400 frames localized (92.0 %: 340 tracked + 28 relocalized), 32 lost`` (and ``, 5
+    posed by the IMU alone`` when there were such frames)."""
     c = localize_counts(stats)
     pct = 100.0 * c["localized"] / c["frames"] if c["frames"] else 0.0
+    imu = f", {c['imu_only']} posed by the IMU alone" if c["imu_only"] else ""
     return (f"{c['localized']}/{c['frames']} frames localized ({pct:.1f} %: {c['tracked']} tracked + "
-            f"{c['relocalized']} relocalized), {c['lost']} lost")
+            f"{c['relocalized']} relocalized){imu}, {c['lost']} lost")
 
 
-def _inertial_request(sensor: str | None, map_sensor: str | None) -> bool:
-    """Whether the localization is of an inertial sensor: the one asked for, else the map's."""
+def _imu_state(ds: Any, imu: str | Path | None, slam_map: Any, cfg: Any):
+    """The localizer's IMU (:class:`vslam.localizer_imu.LocalizerImu`) for an inertial sensor: the
+    sequence's samples and calibration, the map's biases; None (with a warning) for a map that is
+    not gravity-aligned."""
+    from vslam.datasets.imu import dataset_imu
+    from vslam.localizer_imu import LocalizerImu, map_bias
+
+    if not slam_map.gravity_aligned:
+        log.warning("the map is not gravity-aligned (a visual run's): the IMU is not used, frames are "
+                    "localized visually")
+        return None
+    samples, calib = dataset_imu(ds, imu)
+    log.info("IMU: %d samples from %s", len(samples), samples.source or imu)
+    keyframes = [slam_map.keyframes[k] for k in sorted(slam_map.keyframes)]
+    return LocalizerImu(samples, calib, map_bias(keyframes), cfg.frontend.tracking.imu_only_max_s)
+
+
+def _inertial_request(sensor: str | None, map_sensor: str | None, imu: Any = None) -> bool:
+    """Whether the localization is of an inertial sensor: the one asked for, else the map's;
+    ConfigError for an ``imu`` file given to a visual one."""
+    from vslam.errors import ConfigError
     from vslam.inertial.sensors import split_sensor
 
-    if sensor is not None:
-        return split_sensor(sensor)[1]
-    return map_sensor is not None and map_sensor.endswith("-inertial")
+    inertial = split_sensor(sensor)[1] if sensor is not None else bool(map_sensor and map_sensor.endswith("-inertial"))
+    if imu is not None and not inertial:
+        raise ConfigError("--imu is read by the inertial sensors only: add --sensor mono-inertial | "
+                          "stereo-inertial | rgbd-inertial (or localize in an inertial run's map)")
+    return inertial
 
 
 def open_map(map_dir: Path) -> tuple[Any, Any, Any, dict]:

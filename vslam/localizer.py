@@ -11,6 +11,10 @@ Each frame is either
   (ORB-SLAM's ``TrackWithMotionModel`` + ``TrackLocalMap``, Mur-Artal et al. 2015, sec. V-B/D).
   With too few inliers the frame falls back to global relocalization.
 
+With an IMU (an inertial sensor in a gravity-aligned map, :mod:`vslam.localizer_imu`) the IMU
+predicts each frame in place of the constant-velocity model, and a frame that vision cannot
+localize takes the IMU prediction as its pose (state ``imu``) for up to about a second.
+
 Frames that cannot be localized get ``T_world_cam = None`` (never a guess). The map is never
 modified: no points, keyframes or statistics (``found``/``visible``) are written.
 """
@@ -44,7 +48,7 @@ log = logging.getLogger(__name__)
 @dataclass
 class LocalizeResult:
     """The outcome for one frame: ``state`` is ``localized`` (global relocalization), ``tracking``
-    (tracked from the previous pose) or ``lost`` (``T_world_cam`` None). The shape of a
+    (tracked from the previous pose), ``imu`` (the IMU's prediction alone) or ``lost`` (``T_world_cam`` None). The shape of a
     :class:`vslam.stream.FrameResult` (a localized frame is never a keyframe: the map is fixed)."""
 
     T_world_cam: np.ndarray | None
@@ -79,11 +83,13 @@ class Localizer:
         sensor: ``mono``, ``stereo`` or ``rgbd`` (depth is used only as extra constraints).
         localize_config: :class:`LocalizerConfig`.
         vocabulary: BoW vocabulary (default: the packaged one).
+        imu: the IMU state of an inertial sensor in a gravity-aligned map
+            (:class:`vslam.localizer_imu.LocalizerImu`), or None (visual only).
     """
 
     def __init__(self, slam_map: Map, database: Any, camera: PinholeCamera, config: Any = None,
                  sensor: str = "mono", localize_config: LocalizerConfig | None = None,
-                 vocabulary: Any = None) -> None:
+                 vocabulary: Any = None, imu: Any = None) -> None:
         from vslam.config import Config
         from vslam.loop import load_default_vocabulary
         from vslam.loop.relocalization import Relocalizer
@@ -118,6 +124,7 @@ class Localizer:
         # state
         self.T_world_last: np.ndarray | None = None
         self.T_world_prev: np.ndarray | None = None
+        self.imu = imu
         self.ref_kf: int | None = None
         self.counts: dict[str, int] = defaultdict(int)
         self.timers: dict[str, float] = defaultdict(float)
@@ -135,13 +142,14 @@ class Localizer:
     def track(self, frame: Any) -> LocalizeResult:
         """Localize one :class:`~vslam.datasets.frame.Frame` in the map."""
         self.counts["frames"] += 1
+        t = float(frame.timestamp)
         t0 = time.perf_counter()
         obs = self._observe(frame)
         self.timers["features"] += time.perf_counter() - t0
         result: LocalizeResult | None = None
         if self.T_world_last is not None:
             t0 = time.perf_counter()
-            result = self._track(obs)
+            result = self._track(obs, self.imu.predict(t) if self.imu is not None else None)
             self.timers["track"] += time.perf_counter() - t0
             if result is None:
                 self.counts["track_failures"] += 1
@@ -149,16 +157,24 @@ class Localizer:
             t0 = time.perf_counter()
             result = self._relocalize(obs)
             self.timers["relocalize"] += time.perf_counter() - t0
+        if result.T_world_cam is None and self.imu is not None and self.T_world_last is not None:
+            T_imu = self.imu.bridge(t)  # vision failed: the IMU carries the pose (localizer_imu)
+            if T_imu is not None:
+                result = LocalizeResult(T_imu, "imu", 0)
         if result.T_world_cam is None:
             self.counts["lost"] += 1
             self.reset()
+            if self.imu is not None:
+                self.imu.forget()
         else:
             self.counts[result.state] += 1
             # velocity only between consecutive tracked frames: a relocalized pose may jump by the
             # map's local inconsistency, so the next frame starts without a velocity
             self.T_world_prev = self.T_world_last if result.state == "tracking" else None
             self.T_world_last = result.T_world_cam
-            self._timestamps.append(float(frame.timestamp))
+            if self.imu is not None and result.state != "imu":
+                self.imu.localized(t, result.T_world_cam)
+            self._timestamps.append(t)
             self._poses.append(result.T_world_cam)
         return result
 
@@ -176,6 +192,8 @@ class Localizer:
         milliseconds."""
         n = max(self.counts["frames"], 1)
         n_loc = self.counts["tracking"] + self.counts["localized"]
+        imu = {} if self.imu is None else {"imu_used": True, "imu_only_frames": self.counts["imu"],
+                                           "imu_predicted_frames": self.imu.n_predicted}
         return {
             "frames": self.counts["frames"],
             "localized": n_loc,
@@ -185,7 +203,8 @@ class Localizer:
             "relocalization_attempts": self.relocalizer.attempts,
             "track_failures": self.counts["track_failures"],
             "implausible_steps": self.counts["implausible_steps"],
-            "lost": self.counts["frames"] - n_loc,  # every frame not localized (= counts["lost"])
+            "lost": self.counts["frames"] - n_loc - self.counts["imu"],  # every frame without a pose (= counts["lost"])
+            **imu,
             "stage_ms": {k: round(1000.0 * v / n, 2) for k, v in self.timers.items()},
             "startup_ms": {"kernels": self._kernels_ms},  # loading the compiled kernels (vslam.stream)
         }
@@ -261,14 +280,18 @@ class Localizer:
             return T_last.copy()
         return T_last @ V
 
-    def _track(self, obs: _Obs) -> LocalizeResult | None:
-        """Track against the fixed map from the constant-velocity prediction; None if too few inliers."""
+    def _track(self, obs: _Obs, T_world_imu_pred: np.ndarray | None = None) -> LocalizeResult | None:
+        """Track against the fixed map from the IMU's prediction ``T_world_imu_pred`` when there is one,
+        else the constant-velocity prediction; None if too few inliers."""
         if len(obs.uv_undist) < self.cfg.min_inliers:
             return None
-        T_world_pred = self._predict()
+        guided = self.T_world_prev is not None or T_world_imu_pred is not None  # a prediction with motion
+        T_world_pred = self._predict() if T_world_imu_pred is None else T_world_imu_pred
+        if T_world_imu_pred is not None:
+            self.imu.n_predicted += 1
         pts = self._local_points(self._local_keyframes(T_world_pred))
         tree = cKDTree(obs.uv_undist)
-        if self.T_world_prev is None:
+        if not guided:
             # no velocity yet (just relocalized): a window around the last pose may hold only wrong
             # matches that agree on a wrong pose (repetitive texture); match the local map by
             # descriptors alone and let PnP RANSAC find the pose
@@ -281,14 +304,14 @@ class Localizer:
             # from a far-off guess can settle in a wrong minimum among the many wrong matches)
             T_cw, kp, pid = self._match_and_refine(obs, pts, inv_se3(T_world_pred), self.cfg.search_radius_wide_px,
                                                    tree, ransac=True)
-        if len(kp) < self.cfg.min_first_pass_inliers and self.T_world_prev is not None:
+        if len(kp) < self.cfg.min_first_pass_inliers and guided:
             # still too few: the local map by descriptors alone (ORB-SLAM's TrackReferenceKeyFrame)
             T_cw, kp, pid = self._match_unguided(obs, pts)
         if len(kp) < self.cfg.min_first_pass_inliers:
             return None
         res = self._finish(obs, T_cw, tree, "tracking", pts)
         # (no velocity: the pose came from unguided matching + RANSAC, as robust as a relocalization)
-        if res is not None and self.T_world_prev is not None and not self._plausible(T_world_pred, res.T_world_cam):
+        if res is not None and guided and not self._plausible(T_world_pred, res.T_world_cam):
             self.counts["implausible_steps"] += 1
             return None
         return res

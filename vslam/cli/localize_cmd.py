@@ -21,8 +21,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("path", help="sequence folder")
     p.add_argument("--output", "-o", required=True, help="output folder (trajectory.txt, stats.json)")
     p.add_argument("--sensor", choices=["mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial"],
-                   help="default: the map's sensor (an inertial one localizes its frames visually in the "
-                        "map's gravity-aligned world)")
+                   help="default: the map's sensor (an inertial one, in a visual-inertial map, predicts "
+                        "each frame with the IMU and poses frames vision cannot localize for up to a second)")
+    p.add_argument("--imu", metavar="FILE",
+                   help="IMU samples for an inertial sensor on a sequence without them (EuRoC CSV columns: "
+                        "t, w_xyz rad/s, a_xyz m/s^2), its calibration (Kalibr camchain-imucam.yaml, imu.yaml, or "
+                        "ORB-SLAM3 settings) beside it")
     p.add_argument("--dataset", help="force the format: tum, kitti, euroc, 7scenes, folder")
     p.add_argument("--camera", metavar="FILE",
                    help="camera calibration of the sequence (any format `vslam run --camera` reads)")
@@ -44,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         result = localize_path(
             args.map_dir, args.path, args.output, sensor=args.sensor, dataset=args.dataset,
             start_frame=args.start_frame, max_frames=args.max_frames, config=args.config, overrides=args.overrides,
-            progress=not args.no_progress, camera=args.camera, gt=args.gt,
+            progress=not args.no_progress, camera=args.camera, gt=args.gt, imu=args.imu,
         )
     from vslam.localize import counts_line
 
