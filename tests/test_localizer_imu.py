@@ -12,7 +12,8 @@ from vslam.datasets.imu import load_imu_csv, read_imu_calibration
 from vslam.datasets.synthetic import SyntheticConfig
 from vslam.datasets.synthetic.imu import SyntheticImuConfig, imu_motion, write_imu
 from vslam.inertial import ImuBias
-from vslam.localizer_imu import LocalizerImu, map_bias
+from vslam.localizer_imu import LocalizerImu
+from vslam.map.io_inertial import map_bias
 
 SYN = SyntheticConfig(n_frames=300)
 TIMES = np.round(np.arange(0, 31) / SYN.fps, 6)   # 1 s of frames

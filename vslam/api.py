@@ -323,15 +323,17 @@ def _continue_map(cfg, ds, sensor: str, map_dir: str | Path, output: str | Path 
 
 
 def _continue_inertial(cfg, ds, sensor: str, map_dir, slam_map, database, imu_inputs: dict):
-    """A :class:`System` with the IMU continuing the gravity-aligned ``slam_map`` (ORB-SLAM3's Atlas
-    with an IMU: a new map, merged later). The session does not place its frames in the loaded map:
-    its IMU needs its own initialization (velocities and biases over its own keyframes), so it
-    bootstraps a new segment past the loaded ones, initializes its IMU there (the gravity-aligned move
+    """A :class:`System` with the IMU continuing the gravity-aligned ``slam_map``. The first frames are
+    placed in it by global relocalization, as for a visual sensor; once placed, the session's IMU
+    starts from the map's gravity, scale and biases (:mod:`vslam.imu_from_map`: no initialization of
+    its own, so a clip too short for one still lands in the map, metric). Frames that cannot be
+    placed (``frontend.tracking.max_frames_to_place``) start a new segment past the loaded ones
+    (ORB-SLAM3's Atlas: a new map, merged later): its IMU initializes there (the gravity-aligned move
     leaves the loaded segments where they are, :func:`vslam.backend.inertial_mapping.move_map`), and
     loop closing joins it to the loaded map by a yaw + translation once it recognizes a loaded place
-    (:mod:`vslam.loop.segment_merging`; the join waits for the IMU initialization). Poses are in the
-    loaded map's world from the join on."""
+    (:mod:`vslam.loop.segment_merging`; the join waits for the IMU initialization)."""
     from vslam.errors import ConfigError, MapFormatError
+    from vslam.imu_from_map import MapImuStart
     from vslam.system import System
 
     if not slam_map.gravity_aligned:
@@ -341,8 +343,10 @@ def _continue_inertial(cfg, ds, sensor: str, map_dir, slam_map, database, imu_in
     if system.loop_closer is None:
         raise ConfigError("continuing a map needs loop.enabled (its keyframe database finds the places)")
     system.loop_closer.adopt_keyframes(database)
-    # the first bootstrap starts the segment past the loaded ones (Tracker.start_in_map's numbering)
-    system.tracker.state.segment = max(k.segment for k in slam_map.keyframes.values())
+    system.map_imu_start = MapImuStart(system)
+    if hasattr(system.local_mapper, "first_session_kf"):
+        system.local_mapper.first_session_kf = max(slam_map.keyframes) + 1
+    system.tracker.start_in_map(system.frontend_config.tracking.max_frames_to_place)
     system.loaded_keyframes = len(slam_map.keyframes)
     return system
 

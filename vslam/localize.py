@@ -135,7 +135,8 @@ def _imu_state(ds: Any, imu: str | Path | None, slam_map: Any, cfg: Any):
     sequence's samples and calibration, the map's biases; None (with a warning) for a map that is
     not gravity-aligned."""
     from vslam.datasets.imu import dataset_imu
-    from vslam.localizer_imu import LocalizerImu, map_bias
+    from vslam.localizer_imu import LocalizerImu
+    from vslam.map.io_inertial import map_bias
 
     if not slam_map.gravity_aligned:
         log.warning("the map is not gravity-aligned (a visual run's): the IMU is not used, frames are "

@@ -18,10 +18,10 @@ visually localized frame ``i`` (pose, velocity, biases), in a
   (the SLAM run's setting, 1 s by default); the state stays at that frame, so each bridged frame is
   predicted over the whole gap, and the next visual frame is matched from the IMU-predicted pose.
 
-The biases are the map's: the median over its keyframes' stored ``imu_bias`` (a VI-BA's
-estimates; zero when the map stores none). The localizer does not re-estimate them: over the
-short gaps the prediction spans, a bias error ``db`` moves a prediction by ``1/2 db dt^2``
-(0.1 m/s^2 over 0.5 s: 1.3 cm).
+The biases are the map's (:func:`vslam.map.io_inertial.map_bias`: the median over its keyframes'
+stored ``imu_bias``, a VI-BA's estimates; zero when the map stores none). The localizer does not
+re-estimate them: over the short gaps the prediction spans, a bias error ``db`` moves a prediction
+by ``1/2 db dt^2`` (0.1 m/s^2 over 0.5 s: 1.3 cm).
 """
 from __future__ import annotations
 
@@ -35,21 +35,12 @@ from vslam.inertial import ImuBias, ImuCalibration, ImuMeasurements
 log = logging.getLogger(__name__)
 
 
-def map_bias(keyframes) -> ImuBias:
-    """The median of the keyframes' stored biases (``extra["imu_bias"]``, gyro then accelerometer);
-    zero biases when none stores one."""
-    stored = [np.asarray(kf.extra["imu_bias"], float) for kf in keyframes
-              if getattr(kf, "extra", None) and "imu_bias" in kf.extra]
-    b = np.median(np.stack(stored), axis=0) if stored else np.zeros(6)
-    return ImuBias(b[:3], b[3:])
-
-
 class LocalizerImu:
     """The localizer's IMU state (module docstring).
 
     Args:
         imu, calib: the sequence's samples and calibration (``T_imu_cam`` of the localized camera).
-        bias: the biases to preintegrate with (:func:`map_bias`).
+        bias: the biases to preintegrate with (:func:`vslam.map.io_inertial.map_bias`).
         max_bridge_s: the longest gap since the last visually localized frame that IMU-only poses
             may span (0: never bridge).
     """

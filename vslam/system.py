@@ -237,10 +237,15 @@ class System:
         trajectory recorded so far and the keyframes' insertion poses with it, store the keyframes'
         velocities and biases, run a full VI-BA, and start the IMU prediction from the newest keyframe's
         state. Later keyframes: the full VI-BA again at :data:`~vslam.backend.inertial_mapping.REFINE_AT_S`.
+        Placed in a loaded visual-inertial map: the IMU starts from it (:mod:`vslam.imu_from_map`).
         Returns ``S`` when the map moved now, else None."""
         from vslam.map.segment_merge import move_pose
 
-        im = self.inertial
+        im, starter = self.inertial, getattr(self, "map_imu_start", None)  # vslam.imu_from_map
+        if starter is not None and not im.initialized and starter.applies():
+            if out.state == "ok":
+                starter.step(frame, out.T_world_cam)
+            return None
         if not out.is_keyframe or out.state != "ok":
             return None
         if im.initialized:
@@ -428,10 +433,9 @@ class System:
         if not self._timestamps:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         mode = getattr(self._backend_cfg, "frame_correction", "reference")
-        T = frame_poses(np.asarray(self._timestamps), np.asarray(self._ref), np.stack(self._T_rec),
-                        np.stack(self._T_ref_rec), self.map.keyframes, self._kf_inserted,
-                        interpolate=mode == "interpolate")
         ts = np.asarray(self._timestamps)
+        T = frame_poses(ts, np.asarray(self._ref), np.stack(self._T_rec), np.stack(self._T_ref_rec), self.map.keyframes,
+                        self._kf_inserted, interpolate=mode == "interpolate")
         order = np.argsort(ts, kind="stable")
         ts, T = ts[order], T[order]
         keep = np.ones(len(ts), bool)
@@ -440,18 +444,14 @@ class System:
 
     def keyframe_trajectory(self) -> Trajectory:
         kfs = sorted(self.map.keyframes.values(), key=lambda k: k.timestamp)
-        if not kfs:
-            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         ts = np.array([k.timestamp for k in kfs])
-        keep = np.ones(len(ts), bool)
-        keep[1:] = np.diff(ts) > 0
-        return Trajectory(ts[keep], np.stack([k.T_world_cam for k in kfs])[keep])
+        keep = np.r_[True, np.diff(ts) > 0] if kfs else np.zeros(0, bool)
+        return Trajectory(ts[keep], np.stack([k.T_world_cam for k in kfs])[keep] if kfs else np.zeros((0, 4, 4)))
 
     def _loaded_map_stats(self) -> dict:
-        """Continuing a loaded map (:meth:`from_map`): its folder (``map_loaded``, set by the caller
-        that read it), its keyframes, and the frame first placed in
-        it (``placed_at_frame``; None: none was, the session started its own segment), the map
-        keyframe it was placed against and the inliers."""
+        """Continuing a loaded map (:meth:`from_map`): its folder (``map_loaded``, set by the caller), its
+        keyframes, the frame first placed in it (``placed_at_frame``; None: the session started its own
+        segment), the map keyframe it was placed against and the inliers."""
         if getattr(self, "loaded_keyframes", None) is None:
             return {}
         placed = self.tracker.placed

@@ -162,6 +162,9 @@ class InertialLocalMapper(LocalMapper):
         self._params = None
         self._pims: dict = {}  # the local chain's preintegrations, reused (build_chain's cache)
         self.counts.update({"vi_ba_calls": 0, "vi_ba_full_calls": 0})
+        # a session continuing a loaded map chains only its own keyframes (ids from here on): the
+        # loaded ones were taken with another recording's IMU (vslam.imu_from_map)
+        self.first_session_kf = 0
         self.full_ba_results: list[dict] = []
         # ids of the keyframes whose stored state a VI-BA estimated (tracking anchors its inertial pose
         # optimization on them); None when the local BA cannot be visual-inertial (RGB-D)
@@ -192,11 +195,12 @@ class InertialLocalMapper(LocalMapper):
 
     def _local_chain(self, problem, kf_id: int) -> ImuChain | None:
         """The newest keyframes of the segment that are variables of ``problem`` (a run in time) and
-        the one before them (module docstring)."""
+        the one before them (module docstring); this session's keyframes only (:attr:`first_session_kf`)."""
         kf = self.map.keyframes.get(kf_id)
         if kf is None:
             return None
-        kfs = sorted(segment_keyframes(self.map, kf.segment), key=lambda k: k.timestamp)
+        kfs = sorted((k for k in segment_keyframes(self.map, kf.segment) if k.id >= self.first_session_kf),
+                     key=lambda k: k.timestamp)
         var = set(problem.kf_ids.tolist()) - set(problem.fixed_kf_ids.tolist())
         i = len(kfs)
         while i > 0 and kfs[i - 1].id in var:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vslam.backend.inertial_init import InertialInitConfig, InertialInitResult, initialize_inertial
-from vslam.inertial import ImuCalibration, ImuMeasurements
+from vslam.inertial import ImuBias, ImuCalibration, ImuMeasurements
 from vslam.map.map import Map
 from vslam.map.segment_merge import move_pose
 
@@ -105,6 +105,7 @@ class InertialMapping:
         self.attempts = 0
         self.last_reason = "not tried"
         self.refine_at_s = REFINE_AT_S
+        self.from_map = False  # initialized by start_from_map (placed in a loaded gravity-aligned map)
         # full VI-BAs due so far (after the initialization, then at refine_at_s): ``stats.json``
         # ``imu_full_ba``; the backend's ``vi_ba_full`` lists those that ran (not with every backend mode)
         self.n_full_ba = 0
@@ -147,6 +148,25 @@ class InertialMapping:
         self.start = InertialStart(res, S, frame_index, float(timestamp - t[0]))
         log.info("IMU initialized at frame %d after %.2f s of motion (%d keyframes): scale %.4f, gravity %s",
                  frame_index, self.start.motion_s, len(t), res.scale, np.round(res.gravity_world, 3))
+        return self.start
+
+    def start_from_map(self, frame_index: int, timestamp: float, bias: ImuBias) -> InertialStart:
+        """The session was placed in a loaded gravity-aligned, metric map (``vslam run --map``): gravity
+        (the world's -z) and scale (1) are the map's, the biases ``bias`` (the map keyframes'), the
+        velocity comes from the tracked poses (the caller's :class:`ImuPredictor`). Nothing moves
+        (``S`` is the identity), and no full VI-BA follows: the segment's keyframes are mostly the
+        earlier session's, whose IMU samples this session does not have."""
+        g = float(self.calib.gravity)
+        res = InertialInitResult(success=True, reason="from the loaded map", R_world_gravityaligned=np.eye(3),
+                                 scale=1.0, velocities=np.zeros((1, 3)), bias=bias, cost=0.0, initial_cost=0.0,
+                                 gravity_world=np.array([0.0, 0.0, -g]), timestamps=np.array([float(timestamp)]),
+                                 duration_s=0.0)
+        self.start = InertialStart(res, np.eye(4), int(frame_index), 0.0)
+        self.from_map = True
+        self.refine_at_s = ()
+        self.last_reason = res.reason
+        log.info("IMU initialized from the loaded map at frame %d (its gravity and scale, biases %s / %s)",
+                 frame_index, np.round(bias.gyro, 4), np.round(bias.accel, 3))
         return self.start
 
     def refinement_due(self, timestamp: float) -> bool:
@@ -196,6 +216,7 @@ class InertialMapping:
             "imu_bias_gyro": [float(x) for x in res.bias.gyro],
             "imu_bias_accel": [float(x) for x in res.bias.accel],
             "imu_full_ba": self.n_full_ba,
+            "imu_init_source": "map" if self.from_map else "estimated",
         })
         if final_bias is not None:
             out["imu_init_bias_gyro"], out["imu_init_bias_accel"] = out["imu_bias_gyro"], out["imu_bias_accel"]

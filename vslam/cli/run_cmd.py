@@ -103,9 +103,7 @@ def run(args: argparse.Namespace) -> int:
     if "dropped_frames" in s:
         print(f"live: {s['captured_frames']} frames captured, {s['dropped_frames']} dropped while the tracker was busy")
     if "imu_initialized" in s:
-        print(f"IMU initialized at frame {s['imu_init_frame']} after {s['imu_init_time_s']:.2f} s of motion"
-              + (f", scale {s['imu_scale']:.4f}" if "imu_scale" in s else "") if s["imu_initialized"]
-              else f"IMU not initialized ({s.get('imu_init_reason', '')})")
+        print(_imu_line(s))
     if ate_line(s):
         print(ate_line(s))
     if "trajectory_export" in s:
@@ -115,3 +113,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"dense map: {d.get('mesh_vertices', d.get('vertices', '?'))} mesh vertices -> {d.get('mesh', '')}")
     print(f"results in {Path(args.output)}")
     return 0
+
+
+def _imu_line(s: dict) -> str:
+    """The summary line of an inertial run's IMU initialization."""
+    if not s["imu_initialized"]:
+        return f"IMU not initialized ({s.get('imu_init_reason', '')})"
+    if s.get("imu_init_source") == "map":
+        return f"IMU initialized at frame {s['imu_init_frame']} from the loaded map (its gravity, scale and biases)"
+    return (f"IMU initialized at frame {s['imu_init_frame']} after {s['imu_init_time_s']:.2f} s of motion"
+            + (f", scale {s['imu_scale']:.4f}" if "imu_scale" in s else ""))

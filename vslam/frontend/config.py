@@ -46,7 +46,7 @@ class TrackingConfig:
     essential_px: float = param(1.0, "2D-2D (essential matrix) RANSAC threshold in pixels", bounds="(0, 1000]")
     max_lost_frames: int = param(3, "after this many consecutive lost frames, re-initialize a new map segment", bounds="[0, 1000000]")
     imu_only_max_s: float = param(1.0, "inertial sensors, IMU initialized: a frame that cannot be tracked visually takes the IMU prediction as its pose while the last tracked frame is at most this many seconds back (0: never)", bounds="[0, 1000]")
-    max_frames_to_place: int = param(30, "continuing a loaded map (vslam run --map): frames tried for a global relocalization in it before a new map segment starts", bounds="[0, 1000000]")
+    max_frames_to_place: int = param(30, "continuing a loaded map (vslam run --map): frames tried for a global relocalization in it before a new map segment starts (0: none, a new segment at once)", bounds="[0, 1000000]")
     enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search", bounds="[0, 1000]")
     second_pass_keep_ratio: float = param(0.8, "the pose after the second guided matching is kept with at least this ratio of the first pose's inliers", bounds="[0, 1]")
     prediction_min_inlier_ratio: float = param(0.6, "a pose refined from the prediction is kept with max(min_inliers, this ratio of its matches) inliers", bounds="[0, 1]")

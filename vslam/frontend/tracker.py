@@ -147,11 +147,13 @@ class Tracker:
     def start_in_map(self, max_frames_to_place: int) -> None:
         """The map holds keyframes of an earlier session: place the next frames in it by global
         relocalization (any segment) instead of bootstrapping a new segment; after
-        ``max_frames_to_place`` frames that cannot be placed, bootstrap a new segment past the
-        map's highest segment id."""
+        ``max_frames_to_place`` frames that cannot be placed (0: at once), bootstrap a new segment
+        past the map's highest segment id."""
         st = self.state
-        st.status = "placing"
         st.segment = max((k.segment for k in self.map.keyframes.values()), default=-1)
+        if max_frames_to_place <= 0:  # no placing: the first bootstrap starts a new segment past the loaded ones
+            return
+        st.status = "placing"
         self._place_left = int(max_frames_to_place)
 
     def segment_merged(self, old: int, new: int, S_new_old: np.ndarray) -> None:

@@ -10,7 +10,8 @@ A visual-inertial map keeps, besides ``map_attributes.gravity_aligned``:
 
 :func:`check_inertial_extras` (on load) and :func:`check_inertial_metadata` (on save and load) refuse
 what the format cannot mean: wrong shape or dtype, NaN/inf, a gravity that is not ~9.8 m/s^2.
-:func:`inertial_metadata` builds the metadata entry from an :class:`vslam.inertial.ImuCalibration`.
+:func:`inertial_metadata` builds the metadata entry from an :class:`vslam.inertial.ImuCalibration`;
+:func:`map_bias` gives the biases a new session starts with in the map (its keyframes' median).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from vslam.errors import MapFormatError
+from vslam.inertial import ImuBias
 from vslam.map.keyframe import KeyFrame
 
 #: shape of each inertial entry of ``KeyFrame.extra`` (all float64)
@@ -76,3 +78,12 @@ def check_inertial_extras(where: str | Path, keyframes: Iterable[KeyFrame]) -> i
                                      f"got {got}; the map is corrupted")
         n += "imu_velocity" in kf.extra
     return n
+
+
+def map_bias(keyframes: Iterable[KeyFrame]) -> ImuBias:
+    """The median of the keyframes' stored biases (``extra["imu_bias"]``, gyro then accelerometer);
+    zero biases when none stores one."""
+    stored = [np.asarray(kf.extra["imu_bias"], float) for kf in keyframes
+              if getattr(kf, "extra", None) and "imu_bias" in kf.extra]
+    b = np.median(np.stack(stored), axis=0) if stored else np.zeros(6)
+    return ImuBias(b[:3], b[3:])
