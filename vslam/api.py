@@ -155,6 +155,7 @@ def run_path(
     map_dir: str | Path | None = None,
     gt: str | Path | None = None,
     imu: str | Path | None = None,
+    plots: bool = True,
 ):
     """Run SLAM over the sequence at ``path`` and (if ``output``) write the run folder.
 
@@ -179,6 +180,8 @@ def run_path(
     ``gt`` chooses the ground truth: None the dataset's own, ``"none"`` none, else a trajectory
     file (:func:`vslam.datasets.ground_truth.resolve_ground_truth`: a problem with it skips the
     evaluation with a warning; ``stats`` names it, ``gt_file`` and ``gt_frame``).
+    ``plots=False`` leaves out ``trajectory.png`` and ``topology.png`` (matplotlib: about half a
+    second a run; ``vslam map`` draws its sessions in one report instead).
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.datasets.ground_truth import resolve_ground_truth
@@ -199,6 +202,7 @@ def run_path(
                                              camera, topics)
     truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
     system = _continue_map(cfg, ds, sensor, map_dir, output, path, imu_inputs) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
+    system.plots = plots
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
     viewer, on_frame = open_viewer(viz, system, viz_options) if viz else (None, None)
     try:
@@ -214,7 +218,8 @@ def run_path(
     finally:
         if viewer is not None:
             viewer.close()
-    return _extra_outputs(result, output, trajectory_format, dense, progress, (truth.trajectory, sensor))
+    return _extra_outputs(result, output, trajectory_format, dense, progress,
+                          (truth.trajectory, sensor) if plots else None)
 
 
 def _open_run(path, dataset, sensor, imu, map_dir, dense: bool, start_frame: int, max_frames, camera, topics):

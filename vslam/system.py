@@ -359,18 +359,17 @@ class System:
             self._imu_rows.append([timestamp, *v, *p.bias.gyro, *p.bias.accel, int(imu_only)])
 
     def save_map_outputs(self, directory: str | Path, metadata: dict | None = None, progress: Any = None) -> dict:
-        """Write the sparse map (``sparse.ply``), the topological map (``topology.json``/``.png``)
-        and the reloadable map (``map/``, with the bag-of-words database when loop closing ran).
+        """Write the sparse map (``sparse.ply``), the topological map (``topology.json``/``.png``; the PNG
+        unless ``plots`` was set False) and the reloadable map (``map/``, with the bag-of-words database).
         ``progress``: an optional tqdm-like bar, advanced once per file written."""
         from vslam.reconstruction.map_outputs import write_map_outputs
 
         lc = self.loop_closer
         loops_kf = [(r.query_kf, r.match_kf, r.inliers) for r in lc.loops] if lc is not None else []
         with self._map_lock:
-            written = write_map_outputs(directory, self.map, camera=self.camera,
-                                        database=lc.database if lc is not None else None,
+            written = write_map_outputs(directory, self.map, camera=self.camera, database=lc.database if lc else None,
                                         loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})},
-                                        progress=progress)
+                                        progress=progress, plots=getattr(self, "plots", True))  # run_path(plots=)
         if self._imu_rows:  # inertial runs: the velocity and biases per frame (vslam report plots them)
             from vslam.inertial.states_csv import write_imu_states
 

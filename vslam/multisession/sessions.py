@@ -9,7 +9,9 @@ file, ``-2``, ``-3`` ... added to repeated names) or one YAML file::
 
 (every key but ``data`` optional; relative ``data`` / ``camera`` paths are relative to the file).
 Each session runs :func:`vslam.api.run_path` into ``OUT/sessions/<name>/`` (:func:`run_session`,
-a picklable top-level function for a process pool or a Ray task). A folder holding a finished run
+a picklable top-level function for a process pool or a Ray task), without its per-run plots
+(``trajectory.png``, ``topology.png``: about half a second of matplotlib per session, as long as
+tracking a fleet session; the report of ``vslam map`` draws every session). A folder holding a finished run
 of the same session (``stats.json`` without ``error``, same ``path``, ``sensor`` and ``start_frame``,
 a ``map/``) is reused instead (:func:`reusable`): a rerun resumes where the last one stopped.
 """
@@ -179,7 +181,7 @@ def run_session(spec: SessionSpec, folder: str, config: str | None = None, overr
     try:
         result = run_path(spec.data, out, sensor=spec.sensor, config=config, overrides=list(overrides),
                           max_frames=spec.max_frames, start_frame=spec.start_frame, camera=spec.camera,
-                          prefetch=prefetch)
+                          prefetch=prefetch, plots=False)  # the report draws every session
         stats = dict(result.stats)
         if not (out / "map" / "map.json").is_file() or not stats.get("keyframes"):
             raise ConfigError(f"{spec.data}: the run made no map (no keyframes)")

@@ -44,9 +44,9 @@ def topology_graph(slam_map: Map, loops: list[tuple[int, int, int]] = (), min_co
 
 def write_map_outputs(out_dir: str | Path, slam_map: Map, camera: Any = None, database: Any = None,
                       loops_kf: list[tuple[int, int, int]] = (), metadata: dict | None = None,
-                      progress: Any = None) -> dict:
-    """Write ``sparse.ply``, ``topology.json``, ``topology.png`` and ``map/`` into ``out_dir``.
-    ``progress``: an optional tqdm-like bar (``total``, ``update``), advanced once per output."""
+                      progress: Any = None, plots: bool = True) -> dict:
+    """Write ``sparse.ply``, ``topology.json``, ``topology.png`` (with ``plots``) and ``map/`` into
+    ``out_dir``. ``progress``: an optional tqdm-like bar (``total``, ``update``), advanced once per output."""
     out = Path(out_dir)
     store = slam_map.points
     n = len(store)
@@ -57,8 +57,9 @@ def write_map_outputs(out_dir: str | Path, slam_map: Map, camera: Any = None, da
     unit = "arbitrary scale" if (metadata or {}).get("sensor") == "mono" else "m"  # a monocular map has no metre
     steps = [("sparse", lambda: export_sparse(out / "sparse.ply", X, colors if colors.any() else None))]
     if nodes:
-        steps += [("topology", lambda: write_topology(out / "topology.json", nodes, edges)),
-                  ("topology_png", lambda: plot_topology(out / "topology.png", nodes, edges, unit=unit))]
+        steps.append(("topology", lambda: write_topology(out / "topology.json", nodes, edges)))
+    if nodes and plots:
+        steps.append(("topology_png", lambda: plot_topology(out / "topology.png", nodes, edges, unit=unit)))
     steps.append(("map", lambda: save_map(slam_map, out, database=database, camera=camera, metadata=metadata or {})))
     if progress is not None:
         progress.total = len(steps)
