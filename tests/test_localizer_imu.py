@@ -6,31 +6,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
-from vslam.datasets.imu import load_imu_csv, read_imu_calibration
-from vslam.datasets.synthetic import SyntheticConfig
-from vslam.datasets.synthetic.imu import SyntheticImuConfig, imu_motion, write_imu
-from vslam.inertial import ImuBias
+from tests.frontend.test_imu_prediction import TIMES, synthetic, truth  # noqa: F401 (the fixture, shared)
 from vslam.localizer_imu import LocalizerImu
 from vslam.map.io_inertial import map_bias
-
-SYN = SyntheticConfig(n_frames=300)
-TIMES = np.round(np.arange(0, 31) / SYN.fps, 6)   # 1 s of frames
-
-
-@pytest.fixture(scope="module")
-def synthetic(tmp_path_factory):
-    """Samples, calibration, the true biases over the frames and the true camera poses."""
-    folder = tmp_path_factory.mktemp("imu")
-    sim = write_imu(folder, SYN, SyntheticImuConfig(noise=False, seed=0))
-    imu = load_imu_csv(folder / "data.csv")
-    calib = read_imu_calibration([folder / "camchain-imucam.yaml", folder / "sensor.yaml"])
-    t = sim.timestamps_ns * 1e-9
-    m = (t >= TIMES[0]) & (t <= TIMES[-1])
-    bias = ImuBias(sim.gyro_bias[m].mean(axis=0), sim.accel_bias[m].mean(axis=0))
-    T_world_cam, *_ = imu_motion(SYN, TIMES, np.eye(4))
-    return imu, calib, bias, T_world_cam
 
 
 def test_velocity_from_two_poses_then_prediction_and_bridging(synthetic):
@@ -39,7 +18,8 @@ def test_velocity_from_two_poses_then_prediction_and_bridging(synthetic):
     and a frame 0.5 s after the last localized one is bridged to 1e-5 m (the velocity from two exact
     poses is exact to 1e-6 m/s). Past ``max_bridge_s`` nothing is bridged; after ``forget`` nothing
     is predicted until two frames are localized again."""
-    imu, calib, bias, T = synthetic
+    imu, calib, bias = synthetic
+    T = truth(calib)[0]
     li = LocalizerImu(imu, calib, bias, max_bridge_s=0.6)
     li.localized(TIMES[0], T[0])
     assert li.predict(TIMES[1]) is None and li.bridge(TIMES[1]) is None and not li.velocity_known
@@ -63,7 +43,8 @@ def test_a_long_gap_starts_a_new_state_without_velocity(synthetic):
     """A localized frame more than ``max_bridge_s`` (at least 0.5 s) after the previous one (a
     relocalization after being lost) gives no velocity: the two poses are too far apart to trust
     the bias over the gap."""
-    imu, calib, bias, T = synthetic
+    imu, calib, bias = synthetic
+    T = truth(calib)[0]
     li = LocalizerImu(imu, calib, bias, max_bridge_s=0.3)
     li.localized(TIMES[0], T[0])
     li.localized(TIMES[20], T[20])          # 0.67 s later

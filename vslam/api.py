@@ -180,8 +180,7 @@ def run_path(
     ``gt`` chooses the ground truth: None the dataset's own, ``"none"`` none, else a trajectory
     file (:func:`vslam.datasets.ground_truth.resolve_ground_truth`: a problem with it skips the
     evaluation with a warning; ``stats`` names it, ``gt_file`` and ``gt_frame``).
-    ``plots=False`` leaves out ``trajectory.png`` and ``topology.png`` (matplotlib: about half a
-    second a run; ``vslam map`` draws its sessions in one report instead).
+    ``plots=False`` leaves out ``trajectory.png`` and ``topology.png`` (``vslam map``'s sessions).
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.datasets.ground_truth import resolve_ground_truth
@@ -191,10 +190,7 @@ def run_path(
     from vslam.system import System
 
     if dataset == "live" or (dataset is None and is_live_source(str(path))):
-        if dense:
-            raise DatasetError("--dense needs depth; live input is mono")
-        if start_frame:
-            raise DatasetError("--start-frame does not apply to live input")
+        _check_live(dense, start_frame)
         return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
                         progress=progress, viz=viz, trajectory_format=trajectory_format, viz_options=viz_options)
     cfg = resolve_config(config, overrides)
@@ -202,14 +198,13 @@ def run_path(
                                              camera, topics)
     truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
     system = _continue_map(cfg, ds, sensor, map_dir, output, path, imu_inputs) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
-    system.plots = plots
+    system.plots = plots  # topology.png (System.save_map_outputs)
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
     viewer, on_frame = open_viewer(viz, system, viz_options) if viz else (None, None)
     try:
         result = run_sequence(
             system, FrameRange(ds, start_frame, stop), total=stop - start_frame, prefetch_mode=prefetch, output_dir=output, config=cfg,
-            ground_truth=truth.trajectory, align="sim3" if sensor == "mono" else "se3", progress=progress,
-            on_frame=on_frame,
+            ground_truth=truth.trajectory, align="sim3" if sensor == "mono" else "se3", progress=progress, on_frame=on_frame,
             extra_stats={"sensor": sensor, "dataset": ds.kind, "path": str(Path(path).resolve()),
                          "start_frame": start_frame, **truth.stats(), **_inertial_metadata(imu_inputs),
                          **({"camera": ds.calibration_source} if getattr(ds, "calibration_source", None) else {})},
@@ -218,8 +213,16 @@ def run_path(
     finally:
         if viewer is not None:
             viewer.close()
-    return _extra_outputs(result, output, trajectory_format, dense, progress,
-                          (truth.trajectory, sensor) if plots else None)
+    plot = (truth.trajectory, sensor) if plots else None
+    return _extra_outputs(result, output, trajectory_format, dense, progress, plot)
+
+
+def _check_live(dense: bool, start_frame: int) -> None:
+    """DatasetError for what live input cannot do."""
+    if dense:
+        raise DatasetError("--dense needs depth; live input is mono")
+    if start_frame:
+        raise DatasetError("--start-frame does not apply to live input")
 
 
 def _open_run(path, dataset, sensor, imu, map_dir, dense: bool, start_frame: int, max_frames, camera, topics):

@@ -46,9 +46,14 @@ def _localize_folder(tmp_path, with_gt: bool = True):
 
 def test_counts_are_one_consistent_set():
     c = localize_counts({"frames": 400, "tracked": 340, "relocalizations": 28})
-    assert c == {"frames": 400, "localized": 368, "tracked": 340, "relocalized": 28, "lost": 32}
+    assert c == {"frames": 400, "localized": 368, "tracked": 340, "relocalized": 28, "imu_only": 0, "lost": 32}
     assert counts_line({"frames": 400, "tracked": 340, "relocalizations": 28}) == \
         "368/400 frames localized (92.0 %: 340 tracked + 28 relocalized), 32 lost"
+    # an inertial sensor: frames posed by the IMU alone have a pose but are not localized by vision
+    imu = {"frames": 400, "tracked": 340, "relocalizations": 28, "imu_only_frames": 12}
+    assert localize_counts(imu)["lost"] == 20
+    assert counts_line(imu) == \
+        "368/400 frames localized (92.0 %: 340 tracked + 28 relocalized), 12 posed by the IMU alone, 20 lost"
 
 
 def test_breaks_only_where_frames_were_lost():
