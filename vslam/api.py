@@ -198,7 +198,7 @@ def run_path(
                                              camera, topics)
     truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
     system = _continue_map(cfg, ds, sensor, map_dir, output, path, imu_inputs) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
-    system.plots = plots  # topology.png (System.save_map_outputs)
+    system.plots = plots
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
     viewer, on_frame = open_viewer(viz, system, viz_options) if viz else (None, None)
     try:

@@ -30,6 +30,19 @@ from vslam.map.io_inertial import map_bias
 log = logging.getLogger(__name__)
 
 
+def tracker_predictor(system: Any, bias: Any, timestamp: float, T_world_cam: np.ndarray,
+                      velocity: np.ndarray) -> ImuPredictor:
+    """The tracker's :class:`ImuPredictor` of an inertial ``system`` from the state at ``timestamp``
+    (after its own initialization or after a placement here): anchored on the keyframes a VI-BA
+    estimated (the local mapper's ``estimated``; None: no visual-inertial local BA), and taking the
+    optimized frame pose for depth sensors whose keyframe states a VI-BA gives in the same frame
+    (the deterministic backend; see :class:`ImuPredictor`)."""
+    anchors = getattr(system.local_mapper, "estimated", None)
+    pose = not system.inertial.monocular and anchors is not None and system.local_mapper.config.mode == "deterministic"
+    return ImuPredictor(system.inertial.imu, system.inertial.calib, bias, timestamp, T_world_cam, velocity,
+                        use_optimized_pose=pose, anchors=anchors)
+
+
 class MapImuStart:
     """Starts the IMU of ``system`` (an inertial :class:`vslam.system.System` continuing a loaded
     gravity-aligned map) from the map once a frame is placed in one of the loaded segments
@@ -56,11 +69,7 @@ class MapImuStart:
         t = float(frame.timestamp)
         p = self._pending
         if p is None or not t > p.t:
-            anchors = getattr(s.local_mapper, "estimated", None)
-            pose = (not s.inertial.monocular and anchors is not None
-                    and s.local_mapper.config.mode == "deterministic")
-            self._pending = ImuPredictor(s.inertial.imu, s.inertial.calib, self.bias, t, T_world_cam, np.zeros(3),
-                                         use_optimized_pose=pose, anchors=anchors)
+            self._pending = tracker_predictor(s, self.bias, t, T_world_cam, np.zeros(3))
             return False
         p.update(t, T_world_cam)  # the velocity from the two tracked poses
         s.inertial.start_from_map(frame.index, t, self.bias)

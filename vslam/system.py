@@ -64,6 +64,9 @@ class System:
             calibration (``T_imu_cam`` of the tracked camera); required by the inertial sensors.
     """
 
+    plots = True  # topology.png with the map outputs (vslam.api.run_path(plots=False) leaves it out)
+    map_imu_start = None  # continuing a visual-inertial map: vslam.imu_from_map.MapImuStart (the API sets it)
+
     def __init__(self, config: Any = None, camera: PinholeCamera | None = None, sensor: str = "mono",
                  features: FeatureConfig | None = None, slam_map: Map | None = None,
                  imu: Any = None, imu_calibration: Any = None) -> None:
@@ -241,10 +244,10 @@ class System:
         Returns ``S`` when the map moved now, else None."""
         from vslam.map.segment_merge import move_pose
 
-        im, starter = self.inertial, getattr(self, "map_imu_start", None)  # vslam.imu_from_map
-        if starter is not None and not im.initialized and starter.applies():
+        im = self.inertial
+        if self.map_imu_start is not None and not im.initialized and self.map_imu_start.applies():
             if out.state == "ok":
-                starter.step(frame, out.T_world_cam)
+                self.map_imu_start.step(frame, out.T_world_cam)
             return None
         if not out.is_keyframe or out.state != "ok":
             return None
@@ -267,18 +270,14 @@ class System:
             im.store_states(self.map, self.tracker.segment)
         self._full_inertial_ba()
         from vslam.backend.inertial_ba_mapping import keyframe_state
-        from vslam.frontend.imu_prediction import ImuPredictor
+        from vslam.imu_from_map import tracker_predictor
         from vslam.inertial import ImuBias
 
-        anchors = getattr(self.local_mapper, "estimated", None)  # None: no visual-inertial local BA
-        # the optimized frame pose: depth sensors, keyframe states from a VI-BA in the same frame (ImuPredictor)
-        pose = not im.monocular and anchors is not None and self.local_mapper.config.mode == "deterministic"
         with self._map_lock:
             kf = im.newest_keyframe(self.map, self.tracker.segment)
             res = start.result
             v, b = keyframe_state(kf) or (res.velocities[-1], np.r_[res.bias.gyro, res.bias.accel])
-            self.tracker.set_imu_predictor(ImuPredictor(im.imu, im.calib, ImuBias(b[:3], b[3:]), kf.timestamp,
-                                                        kf.T_world_cam, v, use_optimized_pose=pose, anchors=anchors))
+            self.tracker.set_imu_predictor(tracker_predictor(self, ImuBias(b[:3], b[3:]), kf.timestamp, kf.T_world_cam, v))
         return S
 
     def _full_inertial_ba(self) -> None:
@@ -369,7 +368,7 @@ class System:
         with self._map_lock:
             written = write_map_outputs(directory, self.map, camera=self.camera, database=lc.database if lc else None,
                                         loops_kf=loops_kf, metadata={"sensor": self.sensor, **(metadata or {})},
-                                        progress=progress, plots=getattr(self, "plots", True))  # run_path(plots=)
+                                        progress=progress, plots=self.plots)
         if self._imu_rows:  # inertial runs: the velocity and biases per frame (vslam report plots them)
             from vslam.inertial.states_csv import write_imu_states
 
