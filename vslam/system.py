@@ -289,8 +289,7 @@ class System:
     def _store_tracked_state(self, kf: KeyFrame) -> None:
         from vslam.backend.inertial_ba_mapping import store_state
 
-        state = self.tracker.imu_state(kf.timestamp)
-        if state is not None:
+        if (state := self.tracker.imu_state(kf.timestamp)) is not None:
             store_state(kf, *state)
 
     def _on_imu_states(self, kf_ids: list[int]) -> None:
@@ -353,8 +352,7 @@ class System:
     def _record_imu_state(self, timestamp: float, imu_only: bool) -> None:
         """A row of ``imu_states.csv``: the IMU velocity at this frame and the biases (once predicting)."""
         p = self.tracker.imu_predictor
-        v = p.velocity_at(timestamp) if p is not None and p.active else None
-        if v is not None:
+        if p is not None and p.active and (v := p.velocity_at(timestamp)) is not None:
             self._imu_rows.append([timestamp, *v, *p.bias.gyro, *p.bias.accel, int(imu_only)])
 
     def save_map_outputs(self, directory: str | Path, metadata: dict | None = None, progress: Any = None) -> dict:
@@ -408,7 +406,8 @@ class System:
         self._timestamps.append(timestamp)
 
     def finish(self) -> None:
-        """End of input: flush pending local mapping, then the optional global BA (``backend.final_ba``)."""
+        """End of input: flush pending local mapping, then the optional global BA (``backend.final_ba``) and
+        the full VI-BA of an inertial run (``backend.final_inertial_ba``)."""
         if self._finished:
             return
         if self.local_mapper is not None:
@@ -418,6 +417,9 @@ class System:
         if self.local_mapper is not None:
             if self._backend_cfg.final_ba:
                 self.local_mapper.global_ba()
+            if self.inertial is not None and self.inertial.initialized and not self.inertial.from_map \
+                    and self._backend_cfg.final_inertial_ba:
+                self._full_inertial_ba()
         self._finished = True
 
     # ------------------------------------------------------------------ results
