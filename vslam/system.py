@@ -417,8 +417,7 @@ class System:
         if self.local_mapper is not None:
             if self._backend_cfg.final_ba:
                 self.local_mapper.global_ba()
-            if self.inertial is not None and self.inertial.initialized and not self.inertial.from_map \
-                    and self._backend_cfg.final_inertial_ba:
+            if self.inertial is not None and self.inertial.final_ba_due(self.base_sensor, self._backend_cfg):
                 self._full_inertial_ba()
         self._finished = True
 

@@ -80,3 +80,25 @@ def test_rgbd_inertial_with_imu_file(capsys, tmp_path, seq):
     ev = evaluate_trajectories(read_tum(out / "trajectory.txt"), read_tum(seq / "groundtruth.txt"), align="se3")
     assert ev.ate_rmse <= 0.025
     assert np.degrees(np.arccos(np.clip(ev.alignment.R[2, 2], -1, 1))) <= 2.0
+
+
+def test_rgbd_inertial_localizes_with_its_imu(capsys, tmp_path, seq):
+    """``vslam localize --sensor rgbd-inertial --imu FILE`` in the run's gravity-aligned map: every
+    frame localized, all but the first ones tracked from the IMU's prediction (measured 72), ATE
+    measured 0.0200 m (the visual localization of the same frames, ``--sensor rgbd``: 0.0297 m);
+    bound 1.5x."""
+    from vslam.eval.evaluate import evaluate_trajectories
+    from vslam.trajectory import read_tum
+
+    imu = seq / "imu0" / "data.csv"
+    assert cli(capsys, "run", seq, "--sensor", "rgbd-inertial", "--imu", imu, "-o", tmp_path / "map",
+               "--no-progress")[0] == 0
+    rc, stdout, err = cli(capsys, "localize", tmp_path / "map", seq, "--sensor", "rgbd-inertial", "--imu", imu,
+                          "-o", tmp_path / "loc", "--no-progress")
+    assert rc == 0, err
+    assert "75/75 frames localized" in stdout
+    s = json.loads((tmp_path / "loc" / "stats.json").read_text())
+    assert s["imu_used"] is True and s["imu_only_frames"] == 0 and s["imu_predicted_frames"] >= 70   # measured 72
+    ev = evaluate_trajectories(read_tum(tmp_path / "loc" / "trajectory.txt"), read_tum(seq / "groundtruth.txt"),
+                               align="se3")
+    assert ev.ate_rmse <= 0.03

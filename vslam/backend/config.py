@@ -196,7 +196,7 @@ class BackendConfig:
     parallel_worker: Literal["thread", "process"] = param("process", "parallel mode: the local BA solve runs in a child process (no GIL shared with tracking) or a thread")
     lag_frames: int = param(8, "parallel mode: a keyframe's local BA is applied this many frames after its keyframe, or at the end of the frame bringing the next keyframe when that comes first", bounds="[0, 1000000]")
     final_ba: bool = param(False, "run a full global bundle adjustment at the end of the run")
-    final_inertial_ba: bool = param(True, "inertial sensors, IMU initialized by the run: a full visual-inertial BA of the current segment at the end of the run (not after a placement in a loaded map, whose keyframes are another recording's)")
+    final_inertial_ba: bool = param(True, "mono- and stereo-inertial, IMU initialized by the run: a full visual-inertial BA of the current segment at the end of the run (not after a placement in a loaded map, whose keyframes are another recording's; not RGB-D, whose local BA stays visual)")
     covisible_keyframes: int = param(10, "local BA window: the local.window_size latest keyframes plus this many strongest covisible ones", bounds="[0, 10000]")
     max_fixed_keyframes: int = param(20, "at most this many keyframes outside the window (sharing most points) are held fixed", bounds="[0, 10000]")
     stereo_far_baselines: float = param(35.0, "stereo observations of points farther than this many baselines enter BA as monocular (0: off)", bounds="(0, 1000000]")
