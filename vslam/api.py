@@ -239,7 +239,7 @@ def _open_run(path, dataset, sensor, imu, map_dir, dense: bool, start_frame: int
         log.info("camera: %s", ds.calibration_source)
     if dense and base == "mono":
         raise DatasetError("--dense needs depth: run with --sensor rgbd or stereo")
-    return ds, f"{base}-inertial" if inertial else base, stop, (_imu_inputs(ds, imu) if inertial else {})
+    return ds, f"{base}-inertial" if inertial else base, stop, (imu_inputs(ds, imu) if inertial else {})
 
 
 def _split_requested(sensor: str | None, imu, map_dir) -> tuple[str | None, bool]:
@@ -263,8 +263,9 @@ def _inertial_metadata(imu_inputs: dict) -> dict:
     return {"inertial": inertial_metadata(imu_inputs["imu_calibration"])}
 
 
-def _imu_inputs(ds, imu) -> dict:
-    """``System``'s ``imu`` and ``imu_calibration`` for an inertial run (:func:`vslam.datasets.imu.dataset_imu`)."""
+def imu_inputs(ds, imu) -> dict:
+    """``System``'s (and the localizer's) ``imu`` and ``imu_calibration`` for an inertial run
+    (:func:`vslam.datasets.imu.dataset_imu`)."""
     from vslam.datasets.imu import dataset_imu
 
     samples, calib = dataset_imu(ds, imu)

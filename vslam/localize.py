@@ -134,7 +134,7 @@ def _imu_state(ds: Any, imu: str | Path | None, slam_map: Any, cfg: Any):
     """The localizer's IMU (:class:`vslam.localizer_imu.LocalizerImu`) for an inertial sensor: the
     sequence's samples and calibration, the map's biases; None (with a warning) for a map that is
     not gravity-aligned."""
-    from vslam.datasets.imu import dataset_imu
+    from vslam.api import imu_inputs
     from vslam.localizer_imu import LocalizerImu
     from vslam.map.io_inertial import map_bias
 
@@ -142,10 +142,10 @@ def _imu_state(ds: Any, imu: str | Path | None, slam_map: Any, cfg: Any):
         log.warning("the map is not gravity-aligned (a visual run's): the IMU is not used, frames are "
                     "localized visually")
         return None
-    samples, calib = dataset_imu(ds, imu)
-    log.info("IMU: %d samples from %s", len(samples), samples.source or imu)
+    inputs = imu_inputs(ds, imu)
     keyframes = [slam_map.keyframes[k] for k in sorted(slam_map.keyframes)]
-    return LocalizerImu(samples, calib, map_bias(keyframes), cfg.frontend.tracking.imu_only_max_s)
+    return LocalizerImu(inputs["imu"], inputs["imu_calibration"], map_bias(keyframes),
+                        cfg.frontend.tracking.imu_only_max_s)
 
 
 def _inertial_request(sensor: str | None, map_sensor: str | None, imu: Any = None) -> bool:
