@@ -35,6 +35,20 @@ def shared_data() -> Path:
     return path
 
 
+@pytest.fixture
+def one_ray_at_a_time(tmp_path_factory):
+    """Tests that start a local Ray instance take turns across pytest-xdist's processes (``make
+    test`` runs two): a file lock in the run's shared temporary root. Two Ray instances starting at
+    once on a loaded 2-core machine can time out waiting for their own GCS servers."""
+    from filelock import FileLock
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker has its own basetemp under one root
+        root = root.parent
+    with FileLock(str(root / "ray.lock")):
+        yield
+
+
 @pytest.fixture(scope="session")
 def cabinet_run(shared_data):
     """TUM fr3/cabinet (58 keyframes) through the default pipeline, once per session:

@@ -132,6 +132,7 @@ def _ray_case(shared_data: Path, root: Path) -> Path:
     ])
 
 
+@pytest.mark.usefixtures("one_ray_at_a_time")
 @pytest.mark.shared
 def test_ray_executor_then_a_rerun_resumes_from_the_finished_sessions(shared_data: Path, tmp_path: Path,
                                                                        monkeypatch, capsys) -> None:

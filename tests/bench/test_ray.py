@@ -10,6 +10,7 @@ from vslam.bench.harness import RayExecutor, run_benchmark
 from vslam.bench.spec import parse_spec
 
 
+@pytest.mark.usefixtures("one_ray_at_a_time")
 def test_ray_executor_runs_every_job_and_brings_the_files_back(tmp_path, monkeypatch):
     pytest.importorskip("ray", reason="ray is not installed (pip install 'vslam[ray]'); CI installs it")
     monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
