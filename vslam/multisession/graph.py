@@ -46,3 +46,30 @@ def spanning_tree(names: list[str], edges: list[dict]) -> list[dict]:
         if e["a"] in forest.parent and e["b"] in forest.parent and forest.union(e["a"], e["b"]):
             tree.append(e)
     return tree
+
+
+def forest_matching(tree: list[dict]) -> list[dict]:
+    """A maximum matching of a forest's edges (``{a, b, inliers}``): repeatedly the strongest edge
+    at a leaf (a node with one edge left), whose two ends then leave the forest. A leaf matched to
+    its only neighbour belongs to some maximum matching, so the greedy is maximum: a chain of ``2k``
+    nodes gives all ``k`` pairs, where taking the strongest edges first can leave ``k - 1``
+    (Karp and Sipser's leaf rule, exact on forests)."""
+    degree: dict = {}
+    for t in tree:
+        for v in (t["a"], t["b"]):
+            degree[v] = degree.get(v, 0) + 1
+    left, out = list(tree), []
+    while left:
+        t = min((e for e in left if degree[e["a"]] == 1 or degree[e["b"]] == 1),
+                key=lambda e: (-e["inliers"], e["a"], e["b"]))
+        out.append(t)
+        gone = {t["a"], t["b"]}
+        kept = []
+        for e in left:
+            if e["a"] in gone or e["b"] in gone:
+                degree[e["a"]] -= 1
+                degree[e["b"]] -= 1
+            else:
+                kept.append(e)
+        left = kept
+    return out

@@ -12,8 +12,9 @@ Each **round** (:func:`merge_rounds`):
 
 1. the cluster graph: two clusters are linked by their strongest verified session overlap
    (``inliers``); its maximum spanning forest (Kruskal) is the tree still to merge;
-2. a matching of that forest's edges, strongest first, each cluster in at most one pair: on a
-   chain of ``n`` sessions about half the edges, so ``O(log n)`` rounds;
+2. a maximum matching of that forest's edges (:func:`vslam.multisession.graph.forest_matching`:
+   the strongest edge at a leaf first), each cluster in at most one pair: on a chain of ``n``
+   sessions ``floor(n / 2)`` pairs, so ``ceil(log2 n)`` rounds;
 3. one task per pair (:func:`merge_task`) on the executor: it loads the two maps from their folders,
    merges the one with fewer keyframes into the other (:func:`vslam.multisession.weld.weld`:
    place recognition of B's keyframes at the seam the verified overlaps found against the whole
@@ -43,7 +44,7 @@ from typing import Callable
 
 import numpy as np
 
-from vslam.multisession.graph import spanning_tree
+from vslam.multisession.graph import forest_matching, spanning_tree
 
 log = logging.getLogger(__name__)
 
@@ -142,17 +143,10 @@ def cluster_links(clusters: list[Cluster], edges: list[dict]) -> list[dict]:
 
 
 def plan_round(clusters: list[Cluster], edges: list[dict]) -> list[tuple[int, int, dict]]:
-    """This round's pairs of cluster indices and the session overlap linking them: a matching of
-    the cluster graph's maximum spanning forest, strongest edge first (module docstring)."""
-    links = cluster_links(clusters, edges)
-    tree = spanning_tree(list(range(len(clusters))), links)
-    used: set[int] = set()
-    pairs = []
-    for t in sorted(tree, key=lambda t: (-t["inliers"], t["a"], t["b"])):
-        if t["a"] not in used and t["b"] not in used:
-            used |= {t["a"], t["b"]}
-            pairs.append((t["a"], t["b"], t["edge"]))
-    return pairs
+    """This round's pairs of cluster indices and the session overlap linking them: a maximum
+    matching of the cluster graph's maximum spanning forest (module docstring)."""
+    tree = spanning_tree(list(range(len(clusters))), cluster_links(clusters, edges))
+    return [(t["a"], t["b"], t["edge"]) for t in forest_matching(tree)]
 
 
 def _joined(a: Cluster, b: Cluster, rec: dict, folder: str) -> Cluster:
