@@ -8,11 +8,22 @@ the seam: the keyframes of B's sessions that the verified overlaps with A's sess
 (``seam`` of :func:`vslam.multisession.overlap.verify_pair`). :func:`weld` runs ``merge_maps``
 (find_seam -> agreeing group -> transform over all correspondences -> append -> seam fusion -> the
 seam's local BA; no global BA: the component gets one at the end) with ``b_keyframes`` = those.
+
+At the known seam each of those keyframes is verified against A's best 2 bag-of-words candidates
+(:data:`SEAM_CANDIDATES`; ``vslam merge``, which does not know the seam, tries 3): the pair
+verification already found that B's keyframe sees A there. Measured (round 5 of
+``benchmarks/RESULTS.md``), merge stage wall time and ATE with one alignment, 3 / 2 / 1 candidates:
+the 16-arc fleet, sequential 12.1 / 9.1 / 5.8 s, 0.0059 m each; 7-Scenes in 5 sessions, 2 workers,
+8.7 / 6.7 / 4.7 s, 0.0462 / 0.0463 / 0.0468 m (one candidate drops a seam keyframe of two merges).
+Without a known seam (``b_keyframes`` None) the default 3 stay.
 """
 from __future__ import annotations
 
 import time
 from typing import Any
+
+#: A's bag-of-words candidates verified per B keyframe at a known seam (module docstring)
+SEAM_CANDIDATES = 2
 
 
 def weld(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, b_keyframes: list[int] | None,
@@ -23,8 +34,9 @@ def weld(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, b_keyframes: list[i
     from vslam.merge import MergeOptions, merge_maps
 
     t0 = time.perf_counter()
-    res = merge_maps(map_a, db_a, map_b, db_b, camera, sensor, cfg, options=MergeOptions(global_ba=False),
-                     source_b=source_b, b_keyframes=b_keyframes)
+    options = MergeOptions(global_ba=False, candidates=SEAM_CANDIDATES if b_keyframes else MergeOptions.candidates)
+    res = merge_maps(map_a, db_a, map_b, db_b, camera, sensor, cfg, options=options, source_b=source_b,
+                     b_keyframes=b_keyframes)
     st, ba = res.stats, res.stats.get("local_ba") or {}
     keep = ("keyframes", "queried_b_keyframes", "seam_keyframes", "weak_seam_keyframes", "alignment_inliers",
             "fused_points", "scale", "keyframe_id_offset")
