@@ -14,7 +14,7 @@ At the known seam each of those keyframes is verified against A's best 2 bag-of-
 verification already found that B's keyframe sees A there. Measured (round 5 of
 ``benchmarks/RESULTS.md``), merge stage wall time and ATE with one alignment, 3 / 2 / 1 candidates:
 the 16-arc fleet, sequential 12.1 / 9.1 / 5.8 s, 0.0059 m each; 7-Scenes in 5 sessions, 2 workers,
-8.7 / 6.7 / 4.7 s, 0.0462 / 0.0463 / 0.0468 m (one candidate drops a seam keyframe of two merges).
+7.5 / 5.7 / 3.7 s, 0.0462 / 0.0463 / 0.0468 m (one candidate drops a seam keyframe of two merges).
 Without a known seam (``b_keyframes`` None) the default 3 stay.
 """
 from __future__ import annotations
