@@ -233,6 +233,21 @@ def test_a_session_task_prefetches_in_a_thread_only_with_a_core_to_spare() -> No
     assert session_prefetch("ray", 1, cpus=8) == "none"  # a Ray task asks for one CPU
 
 
+def test_a_last_wave_with_idle_workers_beside_it_prefetches_in_a_thread() -> None:
+    """5 sessions on 2 workers: the fifth runs alone and gets the idle core (7-Scenes: 2.9 s instead
+    of 4.3-5.0 s, benchmarks/RESULTS.md); a last wave as large as the workers, or one task beside
+    only one idle worker of three, does not; 1 worker never has an idle one."""
+    from vslam.multisession.sessions import session_prefetches
+
+    assert session_prefetches("local", 2, 5, cpus=2) == ["none"] * 4 + ["thread"]
+    assert session_prefetches("ray", 2, 5, cpus=2) == ["none"] * 4 + ["thread"]  # that task asks for 2 CPUs
+    assert session_prefetches("local", 2, 4, cpus=2) == ["none"] * 4
+    assert session_prefetches("local", 3, 5, cpus=3) == ["none"] * 5  # 2 tasks, 1 idle worker
+    assert session_prefetches("local", 4, 5, cpus=4) == ["none"] * 4 + ["thread"]
+    assert session_prefetches("local", 1, 3, cpus=2) == ["thread"] * 3  # session_prefetch's own case
+    assert session_prefetches("ray", 1, 3, cpus=8) == ["none"] * 3
+
+
 def test_session_graph_components_and_tree() -> None:
     names = ["a", "b", "c", "d", "e"]
     edges = [{"a": "a", "b": "b", "inliers": 100}, {"a": "b", "b": "c", "inliers": 500},

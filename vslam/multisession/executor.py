@@ -120,11 +120,13 @@ class TaskExecutor:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
-    def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
-        """``[fn(*args) for args in args_list]``, run as tasks (:meth:`submit`, all at once); results in
-        the order of ``args_list``. A worker that dies breaks the local pool: the tasks it had not
-        finished run again, each alone in a fresh process, so only the one that kills its process fails."""
-        tasks = [self.submit(fn, args, on_error) for args in args_list]
+    def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any],
+            cpus: Sequence[int] | None = None) -> list:
+        """``[fn(*args) for args in args_list]``, run as tasks (:meth:`submit`, all at once, the
+        ``i``-th asking for ``cpus[i]`` CPUs); results in the order of ``args_list``. A worker that
+        dies breaks the local pool: the tasks it had not finished run again, each alone in a fresh
+        process, so only the one that kills its process fails."""
+        tasks = [self.submit(fn, args, on_error, cpus[i] if cpus else 1) for i, args in enumerate(args_list)]
         out = []
         for task in tasks:
             while not task.done:
@@ -142,16 +144,19 @@ class TaskExecutor:
                 return max(int(ray.cluster_resources().get("CPU", 1)), 1)
         return max(self.workers, 1)
 
-    def submit(self, fn: Callable, args: tuple, on_error: Callable[[tuple, str], Any]) -> Pending:
-        """Start ``fn(*args)`` as a task and return at once (``workers=0``: run it now, inline)."""
+    def submit(self, fn: Callable, args: tuple, on_error: Callable[[tuple, str], Any], cpus: int = 1) -> Pending:
+        """Start ``fn(*args)`` as a task and return at once (``workers=0``: run it now, inline).
+        ``cpus``: the CPUs a Ray task asks for (a task that runs a second thread asks for 2); a
+        local task runs in one of the pool's processes whatever it asks."""
         task = Pending(fn, tuple(args), on_error)
         if self.kind == "ray":
             if fn not in self._remotes:
                 import ray
 
                 self._remotes[fn] = ray.remote(num_cpus=1, max_retries=0)(fn)
+            remote = self._remotes[fn] if cpus == 1 else self._remotes[fn].options(num_cpus=cpus)
             try:
-                task.future = self._remotes[fn].remote(*task.args)
+                task.future = remote.remote(*task.args)
             except Exception as exc:  # noqa: BLE001 - the task could not be sent
                 task.done, task.result = True, on_error(task.args, f"Ray task failed: {type(exc).__name__}: {exc}")
         elif self.workers == 0:

@@ -10,7 +10,8 @@ from typing import Any, Callable
 import numpy as np
 
 from vslam.multisession.executor import TaskExecutor
-from vslam.multisession.sessions import SessionSpec, parse_inputs, reusable, reused_record, run_session, session_prefetch
+from vslam.multisession.sessions import (SessionSpec, parse_inputs, reusable, reused_record, run_session,
+                                        session_prefetches)
 
 log = logging.getLogger(__name__)
 
@@ -39,9 +40,10 @@ def _run_sessions(ex: TaskExecutor, specs: list[SessionSpec], root: Path, config
             records[i] = reused_record(s, root / s.name, stats)
         else:
             todo.append(i)
-    prefetch = session_prefetch(ex.kind, ex.workers)
-    done = ex.map(run_session, [(specs[i], str(root / specs[i].name), config, overrides, prefetch) for i in todo],
-                  _failed_session)
+    prefetch = session_prefetches(ex.kind, ex.slots if ex.kind == "ray" else ex.workers, len(todo))
+    done = ex.map(run_session, [(specs[i], str(root / specs[i].name), config, overrides, mode)
+                                for i, mode in zip(todo, prefetch)], _failed_session,
+                  [2 if mode == "thread" and ex.kind == "ray" else 1 for mode in prefetch])
     for i, r in zip(todo, done):
         records[i] = r
     out: list[dict] = [r for r in records if r is not None]
