@@ -176,8 +176,7 @@ class InertialMapping:
         :mod:`vslam.backend.inertial_ba_mapping`), and a final VI-BA made the renderer's RGB-D + IMU
         sequence worse too (ATE 0.0180 -> 0.0208 m); mono and stereo gain on MH_01 (0.00280 ->
         0.00279, 0.00288 -> 0.00272 m)."""
-        return (self.initialized and not self.from_map and sensor != "rgbd"
-                and bool(getattr(backend_config, "final_inertial_ba", False)))
+        return self.initialized and not self.from_map and sensor != "rgbd" and backend_config.final_inertial_ba
 
     def refinement_due(self, timestamp: float) -> bool:
         """Whether the next full VI-BA of :attr:`refine_at_s` is due at ``timestamp`` (the caller runs
