@@ -88,6 +88,10 @@ def test_a_session_added_later_is_the_only_one_tracked_searched_and_merged(mappe
     assert len(merges) == 1 and ["s03"] in (merges[0]["a"], merges[0]["b"])
     assert res["component_maps"][0]["optimized"] and not res["component_maps"][1]["optimized"]
     assert (out / "report.html").is_file() and "session graph" in (out / "report.html").read_text()
+    # the report draws each component's topological map (the finalize task writes only the JSON)
+    assert "Topological map" in (out / "report.html").read_text()
+    for folder in (out, out / "components" / "1"):
+        assert (folder / "topology.json").is_file() and (folder / "topology.png").stat().st_size > 10_000
 
 
 def test_four_overlapping_sessions_merge_and_the_lone_one_stays_apart(mapped: dict) -> None:

@@ -77,6 +77,26 @@ def test_round_trip_is_exact(tmp_path: Path, mode: str) -> None:
     assert new_ids.tolist() == list(range(len(m.points), len(m.points) + 5))
 
 
+def test_keyframe_poses_alone_are_the_loaded_maps(tmp_path: Path) -> None:
+    """``load_keyframe_poses`` (``vslam map``'s finalize) reads only ``keyframes.npz``: the same
+    good keyframes and poses as a whole load, bit for bit (no arithmetic in between)."""
+    m = random_map(7, mode="orb")
+    bad = sorted(m.keyframes)[3]
+    m.keyframes[bad].bad = True
+    save_map(m, tmp_path, camera=CAMERA)
+    poses = mio.load_keyframe_poses(tmp_path)
+    assert sorted(poses) == sorted(k for k, kf in m.keyframes.items() if not kf.bad) and bad not in poses
+    for k, T in poses.items():
+        assert np.array_equal(T, m.keyframes[k].T_world_cam)
+    with open(tmp_path / "map" / "keyframes.npz", "r+b") as fh:  # a flipped byte: refused, as by load_map
+        fh.seek(200)
+        b = fh.read(1)
+        fh.seek(200)
+        fh.write(bytes([b[0] ^ 0xFF]))
+    with pytest.raises(MapFormatError, match="checksum mismatch"):
+        mio.load_keyframe_poses(tmp_path)
+
+
 def test_resave_is_byte_identical(tmp_path: Path, orb_map: Map) -> None:
     save_map(orb_map, tmp_path / "a", camera=CAMERA)
     m2, _, cam, _ = load_map(tmp_path / "a")

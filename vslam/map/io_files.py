@@ -83,8 +83,9 @@ def check_file(root: Path, name: str, entry: dict, verify: bool) -> None:
         raise MapFormatError(f"{path}: checksum mismatch (SHA-256 differs from {MANIFEST_FILE}): the file is corrupted")
 
 
-def read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
-    """All arrays listed for ``name`` in the manifest, with their dtype and shape checked."""
+def read_npz(root: Path, name: str, entry: dict, keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """All arrays listed for ``name`` in the manifest (``keys``: only those), with their dtype and
+    shape checked."""
     path = root / name
     spec = entry.get("arrays")
     if not isinstance(spec, dict):
@@ -95,6 +96,8 @@ def read_npz(root: Path, name: str, entry: dict) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as data:
             present = set(data.files)
             for key, s in spec.items():
+                if keys is not None and key not in keys:
+                    continue
                 if key not in present:
                     raise MapFormatError(f"{path}: missing array {key!r}")
                 a = data[key]

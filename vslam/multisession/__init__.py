@@ -7,8 +7,9 @@ pose graph over every verified overlap and one global BA per component (one task
 Outputs in ``OUT``:
 
 * ``sessions/<name>/``: each session's ``vslam run`` folder (reused by a rerun when complete);
-* ``map/``, ``sparse.ply``, ``topology.*``, ``config.yaml``: the largest component's merged map
-  (sessions as segments); other components in ``components/<i>/``;
+* ``map/``, ``sparse.ply``, ``topology.json``, ``config.yaml``: the largest component's merged map
+  (sessions as segments); other components in ``components/<i>/``; ``topology.png`` beside each
+  ``topology.json`` is drawn with the report (:func:`vslam.report.multisession.draw_topologies`);
 * ``trajectories/<name>.txt``: every frame of the session (TUM, ``T_world_cam``) in the common
   frame of its component (the world of the session whose keyframe ids start at 0 in its map);
 * ``sessions.json``: ``sessions`` (``status``, ``error``, ``reused``, ``component``,

@@ -138,15 +138,11 @@ def session_pose_graph(slam_map, sessions: dict[str, tuple[np.ndarray, int]], be
             "moved_m_median": round(float(np.median(moved)), 5), "s": round(time.perf_counter() - t0, 3)}
 
 
-def _poses(slam_map) -> dict[int, np.ndarray]:
-    return {k: kf.T_world_cam.copy() for k, kf in slam_map.keyframes.items() if not kf.bad}
-
-
 def finalize_task(cluster_folder: str, sessions: dict[str, tuple[list, int]], session_folders: dict[str, str],
                   overlaps: list[dict], out_folder: str, trajectories: str, optimize: bool, pose_graph: bool = True,
                   config: str | None = None, overrides: tuple[str, ...] = ()) -> dict:
     """Task: one component's pose graph and global BA (when ``optimize``: it was merged in this run),
-    then its outputs into ``out_folder`` (``map/``, ``sparse.ply``, ``topology.*``, ``config.yaml``)
+    then its outputs into ``out_folder`` (``map/``, ``sparse.ply``, ``topology.json``, ``config.yaml``)
     and each session's trajectory into ``trajectories/<name>.txt``. Never raises: a failure is the
     record's ``error`` (the other components' outputs are written all the same)."""
     try:
@@ -161,7 +157,7 @@ def _finalize(cluster_folder: str, sessions: dict[str, tuple[list, int]], sessio
               overlaps: list[dict], out_folder: str, trajectories: str, optimize: bool, pose_graph: bool,
               config: str | None, overrides: tuple[str, ...]) -> dict:
     from vslam.api import resolve_config
-    from vslam.map.io import load_run_map
+    from vslam.map.io import load_keyframe_poses, load_run_map
     from vslam.multisession.merging import session_trajectory
     from vslam.outputs import atomic_path
     from vslam.reconstruction.map_outputs import write_map_outputs
@@ -171,7 +167,7 @@ def _finalize(cluster_folder: str, sessions: dict[str, tuple[list, int]], sessio
     placed = {n: (np.asarray(S, float), int(off)) for n, (S, off) in sessions.items()}
     slam_map, db, cam, meta = load_run_map(cluster_folder, "component map", "finalize")
     sensor = meta.get("sensor")
-    before = {n: _poses(load_run_map(session_folders[n], f"session {n}", "place")[0]) for n in placed}
+    before = {n: load_keyframe_poses(session_folders[n]) for n in placed}
     cfg_file = config or (str(Path(cluster_folder) / "config.yaml")
                           if (Path(cluster_folder) / "config.yaml").is_file() else None)
     stats: dict = {"optimized": bool(optimize and len(placed) > 1)}
@@ -190,7 +186,8 @@ def _finalize(cluster_folder: str, sessions: dict[str, tuple[list, int]], sessio
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta)
     meta["sessions"] = list(placed)
-    write_map_outputs(out, slam_map, camera=cam, database=db, metadata=meta)
+    # topology.png: drawn by the report (vslam.report.multisession.draw_topologies), not in this task
+    write_map_outputs(out, slam_map, camera=cam, database=db, metadata=meta, plots=False)
     if cfg_file and Path(cfg_file).is_file() and Path(cfg_file).resolve() != (out / "config.yaml").resolve():
         with atomic_path(out / "config.yaml") as tmp:
             shutil.copyfile(cfg_file, tmp)

@@ -22,6 +22,19 @@ from vslam.reconstruction.topology import plot_topology, write_topology
 log = logging.getLogger(__name__)
 
 
+def _segment_rows(slam_map: Map):
+    """Keyframe id -> the row of the map's segment table holding it (None outside every row). A
+    merged map's sessions share one segment (welded into one frame) but keep a row each, and
+    consecutive ids across two sessions are no odometry (``vslam map``'s topological map drew a chord
+    from each session's last keyframe to the next one's first)."""
+    ranges = np.array([r.keyframe_ids for r in slam_map.segments], dtype=np.int64).reshape(-1, 2)
+
+    def row(kf_id: int) -> int | None:
+        hit = np.flatnonzero((ranges[:, 0] <= kf_id) & (kf_id <= ranges[:, 1]))
+        return int(hit[0]) if len(hit) else None
+    return row
+
+
 def topology_graph(slam_map: Map, loops: list[tuple[int, int, int]] = (), min_covisibility: int = 15
                    ) -> tuple[list[dict], list[dict]]:
     """Nodes and edges of the keyframe graph. ``loops`` are ``(query_kf_id, match_kf_id, inliers)``."""
@@ -29,8 +42,9 @@ def topology_graph(slam_map: Map, loops: list[tuple[int, int, int]] = (), min_co
     nodes = [{"id": int(k.id), "frame": int(k.frame_index), "T_world_cam": np.asarray(k.T_world_cam)} for k in kfs]
     alive = {k.id for k in kfs}
     edges: list[dict] = []
+    row = _segment_rows(slam_map)
     for a, b in zip(kfs[:-1], kfs[1:]):
-        if a.segment == b.segment:
+        if a.segment == b.segment and row(a.id) == row(b.id):
             edges.append({"source": int(a.id), "target": int(b.id), "kind": "odometry", "weight": 1.0})
     for i, links in slam_map.covisibility.items():
         for j, w in links.items():

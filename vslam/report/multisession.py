@@ -4,18 +4,27 @@ Read from ``OUT/sessions.json`` and ``OUT/trajectories/<name>.txt`` only: every 
 trajectory in one plot per component (its common frame, seen from above, one colour per session),
 the session graph (nodes = sessions, grouped by component; edges = verified overlaps labelled with
 their inlier counts, solid where a merge used them, dashed where only the pose graph did, red
-dotted where the merge failed; failed sessions as grey crosses), and the tables of sessions,
-components and timings.
+dotted where the merge failed; failed sessions as grey crosses), the largest component's
+topological map, and the tables of sessions, components and timings.
+
+The topological maps are drawn here (:func:`draw_topologies`: ``topology.png`` beside each
+component's ``topology.json``), not by ``vslam map``'s finalize task: a worker process that only
+drew that one figure paid matplotlib's import for it, 0.5 s of the command's serial end on the
+synthetic fleet (benchmarks/RESULTS.md, issue #26 round 6).
 """
 from __future__ import annotations
 
+import base64
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from vslam.errors import VslamError
 from vslam.report.page import esc, fmt_value, img_tag, new_figure, png_data_uri, render_page
+
+log = logging.getLogger(__name__)
 
 
 def _colours(n: int):
@@ -112,6 +121,48 @@ def _table(head: list[str], rows: list[list]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
+def _component_folder(out: Path, i: int) -> Path:
+    """Where ``vslam map`` wrote component ``i`` (the largest into ``out``)."""
+    return out if i == 0 else out / "components" / str(i)
+
+
+def draw_topologies(folder: str | Path) -> list[Path]:
+    """``topology.png`` of each component of a ``vslam map`` result, from its ``topology.json``
+    (:func:`vslam.reconstruction.topology.plot_topology`; axes in arbitrary scale where a session is
+    monocular). Returns the files written; a component whose JSON is unreadable is skipped with a
+    warning (the page is still written)."""
+    from vslam.reconstruction.topology import plot_topology, read_topology
+
+    out = Path(folder)
+    try:
+        doc = json.loads((out / "sessions.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []  # the page says why
+    sensors = {s["name"]: s.get("sensor") or (s.get("spec") or {}).get("sensor") for s in doc.get("sessions", [])}
+    written = []
+    for i, names in enumerate(doc.get("components", [])):
+        src = _component_folder(out, i) / "topology.json"
+        if not src.is_file():
+            continue
+        try:
+            nodes, edges = read_topology(src)
+        except VslamError as exc:
+            log.warning("%s: not drawn (%s)", src, exc)
+            continue
+        if nodes:
+            unit = "arbitrary scale" if any(sensors.get(n) == "mono" for n in names) else "m"
+            written.append(plot_topology(src.with_suffix(".png"), nodes, edges, unit=unit))
+    return written
+
+
+def _topology_img(out: Path) -> str:
+    png = out / "topology.png"
+    if not png.is_file():
+        return "<p class=\"note\">no topology.png (`vslam report` draws it from topology.json)</p>"
+    return img_tag("data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii"),
+                   "topological map of the largest component")
+
+
 def multisession_report_html(folder: str | Path) -> str:
     """The page of a ``vslam map`` output folder (module docstring)."""
     from vslam.trajectory import read_tum
@@ -134,6 +185,8 @@ def multisession_report_html(folder: str | Path) -> str:
     parts.append(img_tag(traj, "trajectories by session") if traj else "<p class=\"note\">no trajectory</p>")
     parts.append("<h2>Session graph</h2>")
     parts.append(img_tag(graph, "session graph") if graph else "")
+    parts.append("<h2>Topological map (largest component: keyframes, odometry and covisibility edges)</h2>")
+    parts.append(_topology_img(out))
     parts.append("<h2>Sessions</h2>")
     parts.append(_table(["session", "status", "frames", "keyframes", "component", "reused", "error"], [
         [s["name"], s["status"], s.get("frames"), s.get("keyframes"), s.get("component"), s.get("reused"),
@@ -159,5 +212,6 @@ def write_multisession_report(folder: str | Path, output: str | Path | None = No
     path = Path(output) if output is not None else Path(folder) / "report.html"
     if path.suffix.lower() not in (".html", ".htm"):
         raise VslamError(f"{path}: the report is an HTML page; name it *.html (e.g. report.html)")
+    draw_topologies(folder)
     atomic_write_text(path, multisession_report_html(folder))
     return path
