@@ -92,6 +92,7 @@ def test_choose_prefetch(tmp_path, make_tum, monkeypatch):
     assert choose_prefetch("none", FrameRange(ds), 1000) == "none"
     monkeypatch.setattr(pf, "_main_is_reimportable", lambda: False)  # an unguarded script
     assert choose_prefetch("auto", FrameRange(ds), 1000) == "thread"
+    assert choose_prefetch("process", FrameRange(ds), 12) == "thread"  # asked for, but its child would die
     monkeypatch.setattr(pf.os, "cpu_count", lambda: 1)
     monkeypatch.setattr(pf, "_main_is_reimportable", lambda: True)
     assert choose_prefetch("auto", FrameRange(ds), 1000) == "thread"

@@ -173,7 +173,9 @@ def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
     """Resolve ``mode`` (one of :data:`PREFETCH_MODES`) for ``frames``: ``auto`` is ``process``
     for a :class:`FrameRange` of at least :data:`PROCESS_MIN_PIXELS` pixels (frames x
     :func:`_pixels_per_frame`) on a machine with two or more cores, from a non-daemonic process whose main module is safe to import again, else
-    ``thread``; ``process`` falls back to ``thread`` when ``frames`` cannot be sent to a process."""
+    ``thread``; ``process`` falls back to ``thread`` when ``frames`` cannot be sent to a process or
+    the main script would run again in the child (no ``__main__`` guard: the child died there and the
+    run waited on it for ever)."""
     import multiprocessing
 
     if mode not in PREFETCH_MODES:
@@ -184,6 +186,10 @@ def choose_prefetch(mode: str, frames: Any, total: int | None) -> str:
         return mode
     ok = isinstance(frames, FrameRange) and not multiprocessing.current_process().daemon and _picklable(frames)
     if mode == "process":
+        if ok and not _main_is_reimportable():  # its child would run the script again and die: never hang on it
+            log.warning("prefetch=process: the main script has no `if __name__ == \"__main__\"` guard, so a "
+                        "child process would run it again; prefetching in a thread")
+            return "thread"
         return "process" if ok else "thread"
     n = total if total is not None else len(frames) if ok else 0
     long_run = ok and n * _pixels_per_frame(frames.dataset) >= PROCESS_MIN_PIXELS
