@@ -186,7 +186,9 @@ def _finalize(cluster_folder: str, sessions: dict[str, tuple[list, int]], sessio
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta)
     meta["sessions"] = list(placed)
-    # topology.png: drawn by the report (vslam.report.multisession.draw_topologies), not in this task
+    # topology.png: drawn by the report (vslam.report.multisession.draw_topologies), not in this task;
+    # an earlier run's would show the old map
+    (out / "topology.png").unlink(missing_ok=True)
     write_map_outputs(out, slam_map, camera=cam, database=db, metadata=meta, plots=False)
     if cfg_file and Path(cfg_file).is_file() and Path(cfg_file).resolve() != (out / "config.yaml").resolve():
         with atomic_path(out / "config.yaml") as tmp:
