@@ -51,9 +51,10 @@ def one_ray_at_a_time(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def cabinet_run(shared_data):
-    """TUM fr3/cabinet (58 keyframes) through the default pipeline, once per session:
+    """TUM fr3/cabinet (58 keyframes) through the default pipeline, once per session, with the
+    dataset's depth weight as ``vslam run`` resolves it (:func:`vslam.config.with_depth_noise`):
     ``(dataset, system, per-frame results)``."""
-    return _cabinet(shared_data)
+    return _cabinet(shared_data, dataset_depth_weight=True)
 
 
 @pytest.fixture(scope="session")
@@ -64,14 +65,17 @@ def cabinet_run_integer_corners(shared_data):
     return _cabinet(shared_data, ["features.subpixel=off"])
 
 
-def _cabinet(shared_data, overrides=()):
+def _cabinet(shared_data, overrides=(), dataset_depth_weight=False):
     from vslam.api import load_config
-    from vslam.config import Config
+    from vslam.config import Config, with_depth_noise
     from vslam.datasets import open_dataset
     from vslam.system import System
 
     ds = open_dataset(shared_data / "tum_fr3_cabinet_keyframes58", sensor="rgbd")
-    system = System(load_config(Config, None, list(overrides)), ds.camera, sensor="rgbd")
+    cfg = load_config(Config, None, list(overrides))
+    if dataset_depth_weight:  # else the auto (-1) of a System built directly: the octave weight, as measured before
+        cfg = with_depth_noise(cfg, ds.depth_disparity_sigma_px)
+    system = System(cfg, ds.camera, sensor="rgbd")
     results = [system.track(f) for f in ds]
     system.finish()
     return ds, system, results

@@ -8,11 +8,12 @@ Example::
 
 Streaming use, frame by frame::
 
-    from vslam.config import Config
+    from vslam.config import Config, with_depth_noise
     from vslam.datasets import open_dataset
     from vslam.system import System
     ds = open_dataset("path/to/sequence", sensor="rgbd")
-    system = System(Config(), ds.camera, sensor="rgbd")
+    cfg = with_depth_noise(Config(), ds.depth_disparity_sigma_px)  # the dataset's depth weight, as run_path
+    system = System(cfg, ds.camera, sensor="rgbd")
     for frame in ds:
         result = system.track(frame)       # result.T_world_cam is None when lost
 """
@@ -21,7 +22,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from vslam.config import load_config
+from vslam.config import load_config, with_depth_noise
 from vslam.errors import DatasetError
 
 log = logging.getLogger(__name__)
@@ -184,19 +185,18 @@ def run_path(
     Returns a :class:`vslam.runner.RunResult` (``stats`` dict and final ``trajectory``).
     """
     from vslam.datasets.ground_truth import resolve_ground_truth
-    from vslam.datasets.live import is_live_source
     from vslam.datasets.prefetch import FrameRange
     from vslam.runner import run_sequence
     from vslam.system import System
 
-    if dataset == "live" or (dataset is None and is_live_source(str(path))):
-        _check_live(dense, start_frame)
+    if _is_live(dataset, path, dense, start_frame):
         return run_live(path, output, camera=camera, config=config, overrides=overrides, max_frames=max_frames,
                         progress=progress, viz=viz, trajectory_format=trajectory_format, viz_options=viz_options)
     cfg = resolve_config(config, overrides)
     ds, sensor, stop, imu_inputs = _open_run(path, dataset, sensor, imu, map_dir, dense, start_frame, max_frames,
                                              camera, topics)
     truth = resolve_ground_truth(ds, gt, (start_frame, stop))  # before the tracker is built: a --gt typo fails
+    cfg = with_depth_noise(cfg, getattr(ds, "depth_disparity_sigma_px", None))  # the auto (-1) of the RGB-D depth weight
     system = _continue_map(cfg, ds, sensor, map_dir, output, path, imu_inputs) if map_dir is not None else System(cfg, ds.camera, sensor=sensor, **imu_inputs)
     system.plots = plots
     log.info("running %s (%s, %d frames) as %s", path, ds.kind, stop - start_frame, sensor)
@@ -217,12 +217,18 @@ def run_path(
     return _extra_outputs(result, output, trajectory_format, dense, progress, plot)
 
 
-def _check_live(dense: bool, start_frame: int) -> None:
-    """DatasetError for what live input cannot do."""
+def _is_live(dataset: str | None, path, dense: bool, start_frame: int) -> bool:
+    """Whether ``path`` is a live source (or ``dataset`` says so); DatasetError for what live input
+    cannot do."""
+    from vslam.datasets.live import is_live_source
+
+    if not (dataset == "live" or (dataset is None and is_live_source(str(path)))):
+        return False
     if dense:
         raise DatasetError("--dense needs depth; live input is mono")
     if start_frame:
         raise DatasetError("--start-frame does not apply to live input")
+    return True
 
 
 def _open_run(path, dataset, sensor, imu, map_dir, dense: bool, start_frame: int, max_frames, camera, topics):

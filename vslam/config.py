@@ -437,3 +437,20 @@ _BOUNDS_DECLARED_HERE: dict[type, dict[str, Bounds]] = {FeatureConfig: {name: Bo
     "patch_size": "[7, 255]", "sift_contrast_threshold": "(0, 1]", "akaze_threshold": "(0, 1]",
     "brisk_threshold": "[1, 255]", "gftt_quality": "(0, 1]", "gftt_min_distance": "[0, 10000]",
 }.items()}}
+
+
+def with_depth_noise(cfg: Config, sigma_px: float | None) -> Config:
+    """``cfg`` with the ``-1`` (auto) of ``backend.local`` / ``backend.global_ba.rgbd_disparity_sigma_px``
+    replaced by the depth sensor's disparity std ``sigma_px`` (its calibration's figure), or by 0 (off)
+    when the calibration gives none; a value set explicitly stays. The run's ``config.yaml`` records the
+    result."""
+    backend = cfg.backend
+    value = float(sigma_px) if sigma_px else 0.0
+    local, glob = backend.local, backend.global_ba
+    if local.rgbd_disparity_sigma_px == -1.0:
+        local = dataclasses.replace(local, rgbd_disparity_sigma_px=value)
+    if glob.rgbd_disparity_sigma_px == -1.0:
+        glob = dataclasses.replace(glob, rgbd_disparity_sigma_px=value)
+    if local is backend.local and glob is backend.global_ba:
+        return cfg
+    return dataclasses.replace(cfg, backend=dataclasses.replace(backend, local=local, global_ba=glob))

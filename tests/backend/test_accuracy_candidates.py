@@ -58,7 +58,7 @@ def test_the_z2_weighting_leaves_stereo_problems_alone():
 
 def test_negative_disparity_sigma_is_refused():
     with pytest.raises(ConfigError):
-        LocalBAConfig(rgbd_disparity_sigma_px=-1.0)
+        LocalBAConfig(rgbd_disparity_sigma_px=-0.5)  # -1 is "auto", other negatives are refused
 
 
 CAM = PinholeCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
@@ -75,3 +75,30 @@ def test_mono_window_size_sets_the_monocular_window_only():
     default_window, _ = LocalProblemBuilder(m, CAM, "mono", BackendConfig(covisible_keyframes=0), 1.2).window(kf)
     assert len(rgbd_window) == len(default_window) == 10  # the 10 newest (none is the segment's first)
     assert len(mono_window) == 16 and set(default_window) < set(mono_window)
+
+
+@pytest.mark.shared
+def test_the_auto_depth_weight_is_the_datasets_figure_and_off_for_7scenes(tmp_path, shared_data):
+    """``rgbd_disparity_sigma_px = -1`` (the default) takes the dataset's figure (0.1 px for a depth
+    registered to its colour camera) in both BAs; 7-Scenes' unregistered depth keeps the octave weight
+    (0); a value set explicitly stays; ``config.yaml`` records the resolved value."""
+    import yaml
+
+    from vslam.api import run_path
+    from vslam.config import Config, with_depth_noise
+    from vslam.datasets import open_dataset
+    from vslam.datasets.base import RGBD_DISPARITY_SIGMA_PX
+
+    assert Config().backend.local.rgbd_disparity_sigma_px == -1.0 == Config().backend.global_ba.rgbd_disparity_sigma_px
+    tum = open_dataset(shared_data / "tum_rgbd_freiburg1_desk_9frames", sensor="rgbd")
+    seven = open_dataset(shared_data / "7scenes_redkitchen", sensor="rgbd")
+    assert tum.depth_disparity_sigma_px == RGBD_DISPARITY_SIGMA_PX == 0.1 and seven.depth_disparity_sigma_px is None
+    cfg = with_depth_noise(Config(), 0.1)
+    assert cfg.backend.local.rgbd_disparity_sigma_px == 0.1 == cfg.backend.global_ba.rgbd_disparity_sigma_px
+    off = with_depth_noise(Config(), None)
+    assert off.backend.local.rgbd_disparity_sigma_px == 0.0 == off.backend.global_ba.rgbd_disparity_sigma_px
+    mine = Config(backend=dataclasses.replace(Config().backend, local=LocalBAConfig(rgbd_disparity_sigma_px=0.3)))
+    assert with_depth_noise(mine, 0.1).backend.local.rgbd_disparity_sigma_px == 0.3
+    run_path(shared_data / "tum_rgbd_freiburg1_desk_9frames", tmp_path / "run", sensor="rgbd", plots=False)
+    saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
+    assert saved["backend"]["local"]["rgbd_disparity_sigma_px"] == 0.1

@@ -112,7 +112,7 @@ def test_ros2_bag_rgbd_equals_folder(fr1, tmp_path):
     s_ref = _run(fr1, tmp_path / "out_ref")
     assert s_bag["tracked"] == 9 and s_bag["matched_poses"] == 9
     assert s_bag["ate_rmse"] == pytest.approx(s_ref["ate_rmse"], abs=1e-6)
-    assert s_ref["ate_rmse"] == pytest.approx(0.0041, abs=0.0003)
+    assert s_ref["ate_rmse"] == pytest.approx(0.0028, abs=0.0003)
 
 
 def test_ros1_bag_compressed_16u_depth(fr1, tmp_path):
@@ -124,7 +124,7 @@ def test_ros1_bag_compressed_16u_depth(fr1, tmp_path):
     np.testing.assert_array_equal(ds[0].image, ref[0].image)
     assert np.abs(ds[0].depth - ref[0].depth).max() <= 0.0006
     s = _run(bag, tmp_path / "out")
-    assert s["tracked"] == 9 and s["ate_rmse"] == pytest.approx(0.0041, abs=0.0006)
+    assert s["tracked"] == 9 and s["ate_rmse"] == pytest.approx(0.0028, abs=0.0006)
     mono = open_dataset(bag, sensor="mono")
     assert mono[0].depth is None and len(mono) == 9
 
@@ -150,7 +150,7 @@ def test_ground_truth_inside_the_bag_folder_wins(fr1, tmp_path, capsys):
     assert open_dataset(bag).ground_truth_file() == bag / "groundtruth.txt"
     s = _run(bag, tmp_path / "out")
     assert s["gt_file"] == str((bag / "groundtruth.txt").resolve()) and s["gt_frame"] == "camera"
-    assert s["matched_poses"] == 9 and s["ate_rmse"] == pytest.approx(0.0041, abs=3e-4)
+    assert s["matched_poses"] == 9 and s["ate_rmse"] == pytest.approx(0.0028, abs=3e-4)
     (bag / "groundtruth.txt").unlink()  # only the stray one: skipped with a warning, the run goes on
     s = _run(bag, tmp_path / "out2")
     assert s["tracked"] == 9 and "ate_rmse" not in s and "not a number" in s["gt_problem"]

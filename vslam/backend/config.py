@@ -60,10 +60,14 @@ class LocalBAConfig:
     # x 3000 points (benchmarks/backend_bench.py problem): free-pose error u_right 8.09, disparity 6.57, 0.5:
     # 5.59 mm.
     disparity_sigma_scale: float = param(math.sqrt(2.0), "std of the disparity residual in units of the keypoint's sigma (disparity residuals only)", bounds="(0, 1000]")
-    # issue #24 candidate (0 = off while measured): a depth sensor's depth error grows with z^2 (Kinect sigma_z ~
-    # 1.4e-3 z^2 m, Khoshelham & Elberink 2012), i.e. its disparity fx b / z has a constant error, independent of
-    # the keypoint's octave; this sigma replaces disparity_sigma_scale * sigma_octave for RGB-D disparity residuals.
-    rgbd_disparity_sigma_px: float = param(0.0, "RGB-D disparity residuals: a constant disparity std in pixels (the z^2 depth-noise law), whatever the keypoint's octave (0: off, disparity_sigma_scale times its sigma)", bounds="[0, 1000]")
+    # issue #24: a depth sensor's depth error grows with z^2 (Kinect sigma_z ~ 1.4e-3 z^2 m, Khoshelham & Elberink
+    # 2012), i.e. its disparity fx b / z has a constant error, independent of the keypoint's octave; this sigma
+    # replaces disparity_sigma_scale * sigma_octave for RGB-D disparity residuals. -1 (auto): the dataset's
+    # figure (vslam.datasets.base.RGBD_DISPARITY_SIGMA_PX, 0.1 px), off where its depth is not registered to
+    # its colour camera (7-Scenes: trusting it made that row worse at every value, benchmarks/RESULTS.md, issue
+    # #24 item 3); resolved by vslam.api.run_path (vslam.config.with_depth_noise); a System built directly
+    # with -1 keeps it off.
+    rgbd_disparity_sigma_px: float = param(-1.0, "RGB-D disparity residuals: a constant disparity std in pixels (the z^2 depth-noise law), whatever the keypoint's octave (0: off, disparity_sigma_scale times its sigma; -1: auto, the dataset's figure for its depth sensor: 0.1, or off where the depth is not registered to the colour camera, as in 7-Scenes)", bounds="[-1, 1000]")
     solver: str = param("schur", "schur (vectorized NumPy/SciPy LM on the reduced camera system) or gtsam (the reference)")
     lambda_initial: float = param(1e-4, "initial LM damping (Marquardt scaling of the Hessian diagonal)", bounds="(0, 1e10]")
     relative_tolerance: float = param(1e-4, "stop a pass when an iteration's relative cost decrease falls below this", bounds="[0, 1]")
@@ -87,8 +91,8 @@ class LocalBAConfig:
             )
         if self.window_size < 2:
             raise ConfigError(f"local BA window_size must be >= 2, got {self.window_size}")
-        if self.rgbd_disparity_sigma_px < 0:
-            raise ConfigError(f"backend rgbd_disparity_sigma_px must be >= 0, got {self.rgbd_disparity_sigma_px}")
+        if self.rgbd_disparity_sigma_px < 0 and self.rgbd_disparity_sigma_px != -1.0:
+            raise ConfigError(f"backend rgbd_disparity_sigma_px must be >= 0 (or -1: auto), got {self.rgbd_disparity_sigma_px}")
         for name in ("huber_mono", "huber_stereo", "chi2_mono", "chi2_stereo", "rgbd_virtual_baseline", "lambda_initial",
                      "disparity_sigma_scale"):
             if not getattr(self, name) > 0:

@@ -55,6 +55,15 @@ SENSORS = ("mono", "stereo", "rgbd")
 
 # ----------------------------------------------------------------------------------------------
 # Dataset
+#: The depth noise of an RGB-D sensor registered to its colour camera, as the std of the virtual disparity
+#: ``fx b / z`` in pixels. Structured-light and stereo depth errors grow as z^2: a Kinect's sigma_z =
+#: 1.4e-3 z^2 m (Khoshelham & Elberink, Sensors 2012), a constant disparity std of fx b 1.4e-3 = 0.06 px
+#: at the BA's virtual baseline; the registration and the 10-15 ms between the two images add to it. 0.1 px
+#: is the middle of the range that improved both real TUM rows (0.06-0.15 px: fr1 desk 9 0.00406 ->
+#: 0.0027-0.0030 m, fr3 cabinet 0.0294 -> 0.025-0.028 m; benchmarks/RESULTS.md, issue #24 round 6).
+RGBD_DISPARITY_SIGMA_PX = 0.1
+
+
 # ----------------------------------------------------------------------------------------------
 class Dataset:
     """A sequence of :class:`Frame` records read lazily from disk.
@@ -71,6 +80,10 @@ class Dataset:
     sensor: str = "mono"
     frame_rate: float = 30.0
     root: Path
+    #: the depth sensor's noise as a constant disparity std in pixels (:data:`RGBD_DISPARITY_SIGMA_PX`;
+    #: None where the depth is not registered to the colour camera): the BA's ``rgbd_disparity_sigma_px``
+    #: when that is -1 (auto)
+    depth_disparity_sigma_px: float | None = RGBD_DISPARITY_SIGMA_PX
     #: iteration raises once more than this fraction of the requested frames failed to decode
     max_skip_fraction: float = 0.1
     #: IMU samples (:class:`vslam.inertial.ImuMeasurements`) and calibration, for readers that have

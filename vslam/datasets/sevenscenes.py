@@ -47,6 +47,10 @@ class SevenScenesDataset(Dataset):
     """One 7-Scenes sequence."""
 
     kind = "7scenes"
+    # its depth is not registered to the colour camera: a depth weight for the z^2 law made the
+    # redkitchen RGB-D row worse at every value tried (0.0433 -> 0.046-0.057 m; benchmarks/RESULTS.md,
+    # issue #24 item 3), so the BA keeps the octave-scaled disparity weight
+    depth_disparity_sigma_px = None
 
     def __init__(
         self, path: str | Path, sensor: str | None = None, camera: PinholeCamera | None = None
