@@ -441,9 +441,9 @@ _BOUNDS_DECLARED_HERE: dict[type, dict[str, Bounds]] = {FeatureConfig: {name: Bo
 
 def with_depth_noise(cfg: Config, sigma_px: float | None) -> Config:
     """``cfg`` with the ``-1`` (auto) of ``backend.local`` / ``backend.global_ba.rgbd_disparity_sigma_px``
-    replaced by the depth sensor's disparity std ``sigma_px`` (its calibration's figure), or by 0 (off)
-    when the calibration gives none; a value set explicitly stays. The run's ``config.yaml`` records the
-    result."""
+    replaced by the depth sensor's disparity std ``sigma_px`` (the dataset's
+    ``depth_disparity_sigma_px``), or by 0 (off) when it has none (depth not registered to the colour
+    camera); a value set explicitly stays. The run's ``config.yaml`` records the result."""
     backend = cfg.backend
     value = float(sigma_px) if sigma_px else 0.0
     local, glob = backend.local, backend.global_ba
