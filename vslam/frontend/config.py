@@ -132,6 +132,7 @@ class KeyframesConfig:
     # 10 rather than 20: the 10-lap loop adds 2 keyframes in lap 2 instead of 6 (51, 2, 2, 0, 1, 1, 2,
     # 0, 1, 1); every benchmark row stays bit-identical (benchmarks/RESULTS.md, lifelong section).
     revisit_min_age: int = param(10, "revisit: when a keyframe this many keyframes older than the newest shares the most points with the frame, it becomes the reference (local map centre) and max_frames stops forcing keyframes (0: off)", bounds="[0, 1000000]")
+    revisit_floor_mono: bool = param(False, "monocular: a revisit's new reference restarts the tracked-points count no lower than the highest count since the last keyframe (a slow loss of tracked points across reference switches then still makes a keyframe)")
     # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
     close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...", bounds="[0, 1000000]")
     close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points", bounds="[0, 1000000]")
@@ -142,6 +143,7 @@ class LocalMapConfig:
     """The local map the frame is tracked against, and the points keyframes create."""
 
     keyframes: int = param(8, "covisible keyframes whose points form the local map", bounds="[1, 10000]")
+    keyframes_mono: int = param(0, "the same for monocular (0: keyframes)", bounds="[0, 10000]")
     max_points_per_keyframe: int = param(1000, "new points created per keyframe (depth sensors)", bounds="[0, 1000000]")
     cull_min_found_ratio: float = param(0.25, "cull points found in fewer than this ratio of the frames they were visible in", bounds="[0, 1]")
     max_map_points: int = param(200_000, "beyond this, the oldest points outside the local window are dropped (flat memory)", bounds="[1, 100000000]")

@@ -33,6 +33,9 @@ class TrackingState:
         ref_kf, last_kf: the reference keyframe (local map centre) and the newest keyframe.
         frames_since_kf: frames tracked since the last keyframe.
         kf_ref_tracked: map points tracked by the first frame after the reference keyframe.
+        kf_ref_floor: with ``keyframes.revisit_floor_mono``: the highest ``kf_ref_tracked`` since the last keyframe; a revisit's
+            new reference restarts the count, never below it (else a slow decay over reference
+            switches never made a keyframe).
         segment: index of the current map segment (-1 before the first).
         n_lost_run: consecutive lost frames.
         T_world_last_good: pose of the last tracked frame (the origin of a re-initialized segment).
@@ -49,6 +52,7 @@ class TrackingState:
     last_kf: int | None = None
     frames_since_kf: int = 0
     kf_ref_tracked: int | None = None
+    kf_ref_floor: int = 0
     segment: int = -1
     n_lost_run: int = 0
     T_world_last_good: np.ndarray | None = None
@@ -88,12 +92,32 @@ class TrackingState:
         self.T_world_last_good = T_world_cam.copy()
         self.set_prev(obs, gray)
 
+    def count_reference(self, n_tracked: int) -> None:
+        """The first frame after the reference keyframe (or after a revisit's switch) sets
+        ``kf_ref_tracked`` to the map points it tracked, never below ``kf_ref_floor``."""
+        if self.frames_since_kf == 1 or self.kf_ref_tracked is None:
+            self.kf_ref_tracked = max(int(n_tracked), self.kf_ref_floor)
+
+    def revisit(self, kf_id: int, keep_floor: bool = False) -> None:
+        """A revisit: the old keyframe ``kf_id`` becomes the reference; the next frame's count
+        restarts the tracked-points ratio. With ``keep_floor`` (``keyframes.revisit_floor_mono``) it restarts from no less
+        than the highest count since the last keyframe, so a slow loss of tracked points across
+        reference switches still makes a keyframe before the map is lost (depth sensors have the
+        close-points rule for that, and keep a lap over a mapped place free of keyframes)."""
+        self.ref_kf = kf_id
+        self.local_ids = None
+        if keep_floor:
+            self.kf_ref_floor = max(self.kf_ref_floor, self.kf_ref_tracked or 0)
+        self.kf_ref_tracked = None
+        self.revisiting = True
+
     def keyframe_inserted(self, kf_id: int) -> None:
         self.ref_kf = kf_id
         self.last_kf = kf_id
         self.local_ids = None
         self.frames_since_kf = 0
         self.kf_ref_tracked = None
+        self.kf_ref_floor = 0
         self.revisiting = False
 
     def apply_correction(self, D: np.ndarray) -> None:

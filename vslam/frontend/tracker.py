@@ -79,6 +79,8 @@ class Tracker:
         self.camera = camera
         self.sensor = sensor
         self.map = map_
+        mono_kfs = cfg.local_map.keyframes_mono
+        self.n_local_keyframes = mono_kfs if sensor == "mono" and mono_kfs > 0 else cfg.local_map.keyframes
         self.timers: dict[str, float] = {"features": 0.0, "association": 0.0, "pose": 0.0, "mapping": 0.0,
                                          "prepare": 0.0}  # prepare: another thread's, when prefetching
         self.state = TrackingState()
@@ -263,7 +265,7 @@ class Tracker:
     def _local_point_ids(self) -> np.ndarray:
         st = self.state
         if st.local_ids is None:
-            kfs = self.map.local_keyframes(st.ref_kf, self.cfg.local_map.keyframes) if st.ref_kf is not None else []
+            kfs = self.map.local_keyframes(st.ref_kf, self.n_local_keyframes) if st.ref_kf is not None else []
             st.local_ids = self.map.local_point_ids(kfs)
         ids = st.local_ids
         return ids[self.map.points.alive[ids]]
@@ -320,8 +322,7 @@ class Tracker:
         st.status = "ok"
         st.n_lost_run = 0
         st.frames_since_kf += 1
-        if st.frames_since_kf == 1 or st.kf_ref_tracked is None:
-            st.kf_ref_tracked = int((obs.point_ids >= 0).sum())
+        st.count_reference(int((obs.point_ids >= 0).sum()))
         is_kf = decide_keyframe(cfg, self.sensor, obs, T_world_cam, self.map.keyframes.get(st.ref_kf),
                                 st.frames_since_kf, st.kf_ref_tracked, n_inl, self.dense.wants_keyframe(), st.revisiting,
                                 inertial=self.imu_predictor is not None and self.imu_predictor.active)
@@ -336,18 +337,15 @@ class Tracker:
     def _follow_revisit(self, obs: Observation) -> None:
         """On a revisit the reference keyframe (and the local map around it) moves to the old
         keyframe sharing most points with this frame (:func:`revisit_reference`); the tracked-points
-        ratio of the keyframe decision restarts from the next frame's count."""
+        ratio of the keyframe decision restarts (:meth:`TrackingState.revisit`)."""
         st = self.state
         if st.ref_kf is None or self.cfg.keyframes.revisit_min_age <= 0 or self.cfg.motion == "2d2d":
             return
-        best = revisit_reference(self.map, self.map.local_keyframes(st.ref_kf, self.cfg.local_map.keyframes),
+        best = revisit_reference(self.map, self.map.local_keyframes(st.ref_kf, self.n_local_keyframes),
                                  obs.point_ids, st.last_kf, self.cfg.keyframes.revisit_min_age)
         if best is not None and best != st.ref_kf:
             log.debug("revisit: reference keyframe %s -> %d", st.ref_kf, best)
-            st.ref_kf = best
-            st.local_ids = None
-            st.kf_ref_tracked = None
-            st.revisiting = True
+            st.revisit(best, keep_floor=self.sensor == "mono" and self.cfg.keyframes.revisit_floor_mono)
 
     def _insert_keyframe(self, frame: Frame, gray: np.ndarray, obs: Observation, T_world_cam: np.ndarray) -> None:
         kf = self.keyframes.insert(frame, gray, obs, T_world_cam, self.state.segment)
