@@ -7,8 +7,8 @@ from vslam.frontend.config import FrontendConfig, KeyframesConfig
 from vslam.frontend.initializer import MonoInitializer
 from vslam.frontend.keyframe_policy import need_keyframe
 from vslam.frontend.motion_model import MotionModel
-from vslam.frontend.state import TrackingState
 from vslam.frontend.observation import Observation
+from vslam.frontend.state import TrackingState
 from vslam.geometry.lie import se3_exp
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])

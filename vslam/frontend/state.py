@@ -33,9 +33,9 @@ class TrackingState:
         ref_kf, last_kf: the reference keyframe (local map centre) and the newest keyframe.
         frames_since_kf: frames tracked since the last keyframe.
         kf_ref_tracked: map points tracked by the first frame after the reference keyframe.
-        kf_ref_floor: with ``keyframes.revisit_floor_mono``: the highest ``kf_ref_tracked`` since the last keyframe; a revisit's
-            new reference restarts the count, never below it (else a slow decay over reference
-            switches never made a keyframe).
+        kf_ref_floor: with ``keyframes.revisit_floor_mono``, the highest ``kf_ref_tracked`` since
+            the last keyframe: a revisit's new reference restarts the count, never below it (else
+            a slow decay over reference switches never made a keyframe).
         segment: index of the current map segment (-1 before the first).
         n_lost_run: consecutive lost frames.
         T_world_last_good: pose of the last tracked frame (the origin of a re-initialized segment).
@@ -100,10 +100,11 @@ class TrackingState:
 
     def revisit(self, kf_id: int, keep_floor: bool = False) -> None:
         """A revisit: the old keyframe ``kf_id`` becomes the reference; the next frame's count
-        restarts the tracked-points ratio. With ``keep_floor`` (``keyframes.revisit_floor_mono``) it restarts from no less
-        than the highest count since the last keyframe, so a slow loss of tracked points across
-        reference switches still makes a keyframe before the map is lost (depth sensors have the
-        close-points rule for that, and keep a lap over a mapped place free of keyframes)."""
+        restarts the tracked-points ratio. With ``keep_floor`` (``keyframes.revisit_floor_mono``)
+        it restarts from no less than the highest count since the last keyframe, so a slow loss of
+        tracked points across reference switches still makes a keyframe before the map is lost
+        (depth sensors have the close-points rule for that, and keep a lap over a mapped place
+        free of keyframes)."""
         self.ref_kf = kf_id
         self.local_ids = None
         if keep_floor:
