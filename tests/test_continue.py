@@ -101,8 +101,11 @@ def test_map_of_another_sensor_is_refused(kitchen: dict, tmp_path: Path) -> None
 @pytest.mark.slow
 def test_monocular_segments_join_when_the_camera_returns(shared_data: Path) -> None:
     """Monocular 7-Scenes with frames 330-399 dropped and relocalization disabled: tracking is lost,
-    a second segment starts with its own frame and scale, and when the camera returns to the start
-    (frame ~966 sees frame 0's place) the segments are joined under a Sim(3): one map at the end.
+    a second segment starts with its own frame and scale, and when the camera returns (frame ~950
+    sees the place of frame ~251, the loop the undisturbed run closes) the segments are joined under
+    a Sim(3): one map at the end. (The join tried the candidate group in id order, keyframes 0-2 at
+    frames 0-30, before the best match: it joined at frame 966 to frame 27, 123 inliers, scale
+    0.0463, ATE 0.0920 over 923 frames; best match first it is 256 inliers and ATE 0.0868.)
 
     Where tracking is lost (after the gap, or later) and each segment's arbitrary monocular scale
     move with any change of the mapping; the join's scale is the ratio of the two segments' scales
@@ -125,7 +128,7 @@ def test_monocular_segments_join_when_the_camera_returns(shared_data: Path) -> N
     s = system.stats()
     assert s["segments"] == 1 and len(s["merges"]) == 1
     m = s["merges"][0]
-    assert (m["from_segment"], m["into_segment"]) == (1, 0) and m["query_frame"] > 900 and m["match_frame"] < 50
-    assert 0.040 < m["scale"] < 0.053 and m["inliers"] >= 50  # measured 0.0463, 123
+    assert (m["from_segment"], m["into_segment"]) == (1, 0) and m["query_frame"] > 900 and 200 < m["match_frame"] < 300
+    assert 0.040 < m["scale"] < 0.053 and m["inliers"] >= 100  # measured 0.0498 (frame 950 -> 251), 256
     r = evaluate_trajectories(system.trajectory(), ds.ground_truth(), align="sim3")
-    assert len(system.trajectory()) >= 900 and 0.05 < float(r.ate.rmse) < 0.11  # measured 0.0920 over 923 frames
+    assert len(system.trajectory()) >= 900 and 0.05 < float(r.ate.rmse) < 0.11  # measured 0.0868 over 923 frames

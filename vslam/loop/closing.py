@@ -247,8 +247,8 @@ class LoopCloser:
             # the best match first, then its group (nearest ids first); at most three tries. Keyframes
             # of other map segments are skipped (another coordinate frame: that would be map merging)
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
-            order = sorted((i for i in cand.group if i not in exclude and i in same),
-                           key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))[: 1 if single else self.config.closing.max_tries]
+            nearest = sorted(cand.group, key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))
+            order = [i for i in nearest if i not in exclude and i in same][: 1 if single else self.config.closing.max_tries]
             ver: Verified | str | None = None
             self._extra_matches = {}
             try:
@@ -263,7 +263,7 @@ class LoopCloser:
             if isinstance(ver, Verified):
                 prepared = self._prepare_correction(kf, match_id, ver, cand.score)
             if prepared is None:
-                others = [i for i in cand.group if i not in exclude and i not in same and i in self.map.keyframes]
+                others = [i for i in nearest if i not in exclude and i not in same and i in self.map.keyframes]
                 if others and try_merge(self, kf, others) is not None:
                     return None
                 self.rejected += 1
