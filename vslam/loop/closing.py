@@ -244,8 +244,8 @@ class LoopCloser:
                 return None
             self.candidates += 1
             prepared = None
-            # the best match first, then its group (nearest ids first); at most three tries. Keyframes
-            # of other map segments are skipped (another coordinate frame: that would be map merging)
+            # the best match first, then its group (nearest ids first); at most three tries. Other
+            # segments' keyframes go, in that order, to the segment join (try_merge) if no loop verifies
             same = {k.id for k in self.map.keyframes.values() if k.segment == kf.segment}
             nearest = sorted(cand.group, key=lambda i: (i != cand.match_id, abs(i - cand.match_id), i))
             order = [i for i in nearest if i not in exclude and i in same][: 1 if single else self.config.closing.max_tries]
