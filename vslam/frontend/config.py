@@ -45,6 +45,10 @@ class TrackingConfig:
     min_inliers: int = param(20, "fewer pose inliers than this means the frame is lost", bounds="[6, 100000]")
     essential_px: float = param(1.0, "2D-2D (essential matrix) RANSAC threshold in pixels", bounds="(0, 1000]")
     max_lost_frames: int = param(3, "after this many consecutive lost frames, re-initialize a new map segment", bounds="[0, 1000000]")
+    # ORB-SLAM3 keeps relocalizing a lost monocular camera for 3 s before it starts a new map. A new
+    # monocular segment has its own scale and often a poor start (benchmarks/RESULTS.md, round 8:
+    # 7-Scenes mono with 70-100 frames left out, 7 gaps); 30 frames (1 s at 30 Hz) of relocalization first.
+    max_lost_frames_mono: int = param(30, "the same for monocular (0: max_lost_frames)", bounds="[0, 1000000]")
     imu_only_max_s: float = param(1.0, "inertial sensors, IMU initialized: a frame that cannot be tracked visually takes the IMU prediction as its pose while the last tracked frame is at most this many seconds back (0: never)", bounds="[0, 1000]")
     max_frames_to_place: int = param(30, "continuing a loaded map (vslam run --map): frames tried for a global relocalization in it before a new map segment starts (0: none, a new segment at once)", bounds="[0, 1000000]")
     enough_matches_factor: int = param(3, "guided matching with this many times min_inliers matches needs no wider search", bounds="[0, 1000]")
@@ -132,7 +136,7 @@ class KeyframesConfig:
     # 10 rather than 20: the 10-lap loop adds 2 keyframes in lap 2 instead of 6 (51, 2, 2, 0, 1, 1, 2,
     # 0, 1, 1); every benchmark row stays bit-identical (benchmarks/RESULTS.md, lifelong section).
     revisit_min_age: int = param(10, "revisit: when a keyframe this many keyframes older than the newest shares the most points with the frame, it becomes the reference (local map centre) and max_frames stops forcing keyframes (0: off)", bounds="[0, 1000000]")
-    revisit_floor_mono: bool = param(False, "monocular: a revisit's new reference restarts the tracked-points count no lower than the highest count since the last keyframe (a slow loss of tracked points across reference switches then still makes a keyframe)")
+    revisit_floor_mono: bool = param(True, "monocular: a revisit's new reference restarts the tracked-points count no lower than the highest count since the last keyframe (a slow loss of tracked points across reference switches then still makes a keyframe)")
     # ORB-SLAM's bNeedToInsertClose rule (100 / 70)
     close_tracked_min: int = param(100, "stereo/RGB-D: insert when fewer close (with depth) points are tracked ...", bounds="[0, 1000000]")
     close_untracked_min: int = param(70, "... and more than this many close keypoints could create new points", bounds="[0, 1000000]")
@@ -143,7 +147,7 @@ class LocalMapConfig:
     """The local map the frame is tracked against, and the points keyframes create."""
 
     keyframes: int = param(8, "covisible keyframes whose points form the local map", bounds="[1, 10000]")
-    keyframes_mono: int = param(0, "the same for monocular (0: keyframes)", bounds="[0, 10000]")
+    keyframes_mono: int = param(24, "the same for monocular (0: keyframes)", bounds="[0, 10000]")
     max_points_per_keyframe: int = param(1000, "new points created per keyframe (depth sensors)", bounds="[0, 1000000]")
     cull_min_found_ratio: float = param(0.25, "cull points found in fewer than this ratio of the frames they were visible in", bounds="[0, 1]")
     max_map_points: int = param(200_000, "beyond this, the oldest points outside the local window are dropped (flat memory)", bounds="[1, 100000000]")

@@ -15,7 +15,8 @@ map), :mod:`~vslam.frontend.dense_refine` (RGB-D dense alignment), :mod:`~vslam.
 New monocular points and point culling belong to local mapping (:mod:`vslam.map.new_points`,
 run by the keyframe listener).
 
-A frame with too few inliers is *lost* (no pose); after ``tracking.max_lost_frames`` lost frames the
+A frame with too few inliers is *lost* (no pose); after ``tracking.max_lost_frames`` lost frames
+(``max_lost_frames_mono`` for monocular, which is relocalized for longer first) the
 tracker re-initializes a new map segment anchored at the last good pose, so a run always continues.
 Corrections of the map (local BA, loop closing) reach the tracker through :meth:`Tracker.apply_correction`.
 
@@ -81,6 +82,8 @@ class Tracker:
         self.map = map_
         mono_kfs = cfg.local_map.keyframes_mono
         self.n_local_keyframes = mono_kfs if sensor == "mono" and mono_kfs > 0 else cfg.local_map.keyframes
+        mono_lost = cfg.tracking.max_lost_frames_mono
+        self.max_lost_frames = mono_lost if sensor == "mono" and mono_lost > 0 else cfg.tracking.max_lost_frames
         self.timers: dict[str, float] = {"features": 0.0, "association": 0.0, "pose": 0.0, "mapping": 0.0,
                                          "prepare": 0.0}  # prepare: another thread's, when prefetching
         self.state = TrackingState()
@@ -412,7 +415,7 @@ class Tracker:
         st.n_lost_run += 1
         st.status = "lost"
         log.info("frame %d lost (%d in a row)", frame.index, st.n_lost_run)
-        if st.n_lost_run >= self.cfg.tracking.max_lost_frames:
+        if st.n_lost_run >= self.max_lost_frames:
             self._reinitialize()
             if self.sensor != "mono":  # depth sensors restart a map segment on this very frame
                 obs.point_ids[:] = -1
