@@ -11,7 +11,7 @@ stereo-inertial 0.0032 m, mono-inertial 0.0050 m):
 | run, frames 50-59 black | poses | imu_only_frames | SE(3) ATE | segments |
 |---|---|---|---|---|
 | stereo-inertial | 80/80 | 10 | 0.0028 m (0.0029 without the blackout) | 1 |
-| mono-inertial | 80/80 | 10 | 0.0041 m (0.0042 before the final full VI-BA) | 1 |
+| mono-inertial | 80/80 | 10 | 0.0038 m (0.0041 before the wider monocular local map of #24 round 8, 0.0042 before the final full VI-BA) | 1 |
 | stereo | 70/80 (the 10 black frames lost) | | 0.0032 m over the 70 | 1 |
 
 The bounds sit a little above these (other CPUs' rounding); stereo-inertial's is the issue's goal
@@ -83,7 +83,7 @@ def test_black_frames_are_posed_by_the_imu(runs, gt, shared_data, sensor, max_at
     black_t = _times(shared_data, BLACK)
     assert np.isin(black_t, r.trajectory.timestamps).all()
     ate = evaluate_trajectories(r.trajectory, gt, align="se3").ate_rmse
-    assert ate <= max_ate                                          # measured 0.0028 / 0.0042 (goal 0.01)
+    assert ate <= max_ate                                          # measured 0.0028 / 0.0038 (goal 0.01)
     # imu_states.csv: one row per frame from the initialization on, the black frames flagged
     from vslam.inertial.states_csv import read_imu_states
 
