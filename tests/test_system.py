@@ -129,3 +129,27 @@ def test_lost_frames_get_no_pose_and_tracking_recovers():
     assert system.stats()["frames_lost"] >= 2
     traj = system.trajectory()
     assert len(traj) == 20 - sum(s != "ok" for s in states)
+
+
+def test_a_lost_monocular_camera_is_relocalized_for_longer_before_a_new_segment():
+    """``tracking.max_lost_frames_mono`` (30): a monocular camera stays *lost* (relocalization tried
+    on every frame) for 30 black frames, the 30th starting a new segment that initializes from the
+    next frame on, where ``max_lost_frames`` (3) would start it on the 3rd (benchmarks/RESULTS.md,
+    round 8)."""
+    from tests.frontend._synthetic import synthetic_frames
+
+    camera, frames, _ = synthetic_frames()
+
+    def states(tracking: TrackingConfig) -> list[str]:
+        system = System(FrontendConfig(tracking=tracking), camera, "mono")
+        out = []
+        for k, f in enumerate(frames):
+            image = np.zeros_like(f.image) if k >= 8 else f.image
+            out.append(system.track(Frame(f.index, f.timestamp, image, camera)).state)
+        return out
+
+    default = states(TrackingConfig())
+    assert default[:8].count("ok") >= 3  # initialized on the synthetic loop (measured at frame 4)
+    assert default[8:38] == ["lost"] * 30 and default[38:] == ["initializing"] * 2
+    short = states(TrackingConfig(max_lost_frames_mono=0))  # 0: max_lost_frames
+    assert short[8:11] == ["lost"] * 3 and short[11] == "initializing"
