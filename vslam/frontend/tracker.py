@@ -80,10 +80,10 @@ class Tracker:
         self.camera = camera
         self.sensor = sensor
         self.map = map_
-        mono_kfs = cfg.local_map.keyframes_mono
-        self.n_local_keyframes = mono_kfs if sensor == "mono" and mono_kfs > 0 else cfg.local_map.keyframes
-        mono_lost = cfg.tracking.max_lost_frames_mono
-        self.max_lost_frames = mono_lost if sensor == "mono" and mono_lost > 0 else cfg.tracking.max_lost_frames
+        # the monocular variants of two settings (0: the setting for every sensor)
+        mono = sensor == "mono"
+        self.n_local_keyframes = (mono and cfg.local_map.keyframes_mono) or cfg.local_map.keyframes
+        self.max_lost_frames = (mono and cfg.tracking.max_lost_frames_mono) or cfg.tracking.max_lost_frames
         self.timers: dict[str, float] = {"features": 0.0, "association": 0.0, "pose": 0.0, "mapping": 0.0,
                                          "prepare": 0.0}  # prepare: another thread's, when prefetching
         self.state = TrackingState()
