@@ -331,9 +331,31 @@ class RayExecutor:
             return rows  # type: ignore[return-value]
         finally:
             if started:
-                ray.shutdown()
+                stop_ray(local=not self.address)
             if tmp is not None:
                 shutil.rmtree(tmp, ignore_errors=True)
+
+
+def stop_ray(local: bool) -> None:
+    """``ray.shutdown()``; ``local``: the Ray was started by this process (:func:`start_local_ray`),
+    whose autoscaler monitor is killed first.
+
+    ``ray.shutdown()`` stops each process of a Ray it started with SIGTERM and waits up to 1 s for it
+    to exit (``ray._private.node.Node._kill_process_impl``). The autoscaler monitor does not exit
+    within that second and is then killed anyway: 1.01 s of a 1.33 s shutdown (ray 2.60.0; 0.32 s
+    with the monitor killed first). A one-machine Ray has nothing to scale, so it is killed at once.
+    That goes through Ray's internals; where they differ, this is ``ray.shutdown()`` alone. A Ray
+    reached by ``--address`` is only disconnected from, as before."""
+    import ray
+
+    if local:
+        try:
+            node = getattr(ray._private.worker, "_global_node", None)
+            for info in (node.all_processes.get("monitor", []) if node is not None else []):
+                info.process.kill()
+        except Exception as exc:  # noqa: BLE001 - another Ray version: the plain shutdown below
+            log.debug("could not stop Ray's monitor first: %s", exc)
+    ray.shutdown()
 
 
 def start_local_ray(num_cpus: int, temp_dir: Path | None = None, tries: int = 2) -> Path:

@@ -112,9 +112,9 @@ class TaskExecutor:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
         if self._started:
-            import ray
+            from vslam.bench.harness import stop_ray
 
-            ray.shutdown()
+            stop_ray(local=not self.address)
             self._started = False
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
