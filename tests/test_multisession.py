@@ -107,6 +107,21 @@ def test_overlapping_sessions_merge_into_one_map_in_one_frame(fleet: dict) -> No
 
 
 @pytest.mark.shared
+def test_a_merge_verifying_its_seam_in_two_threads_makes_the_same_map(fleet: dict, tmp_path: Path) -> None:
+    """merge_task with ``threads=2`` (a lone merge up the tree: vslam.merge.find_seam verifies B's
+    keyframes in a thread pool) gives the one-thread merge's transform, seam and fused points exactly:
+    the verifications are read-only and each is seeded by its keyframe, the best taken in B's order."""
+    from vslam.multisession.tree_merge import merge_task
+
+    sessions = fleet["out"] / "sessions"
+    recs = [merge_task(str(sessions / "k1"), str(sessions / "k0"), str(tmp_path / f"t{t}"), threads=t) for t in (1, 2)]
+    assert recs[0]["ok"] and recs[0]["seam_keyframes"] >= 5, recs[0]
+    keys = ("S_a_b", "offset", "keyframes", "queried_b_keyframes", "seam_keyframes", "alignment_inliers",
+            "fused_points", "scale")
+    assert {k: recs[1][k] for k in keys} == {k: recs[0][k] for k in keys}
+
+
+@pytest.mark.shared
 def test_a_session_without_overlap_and_a_failed_one_are_reported(fleet: dict) -> None:
     out, res = fleet["out"], fleet["result"]
     by_name = {s["name"]: s for s in res["sessions"]}
@@ -415,10 +430,13 @@ class _FakeMerges:
 
     def __init__(self, keyframes: dict[str, int], fail: tuple[str, ...] = (), hooks: dict | None = None) -> None:
         self.keyframes, self.fail, self.hooks, self.calls = dict(keyframes), fail, hooks or {}, []
+        self.threads: dict[str, int] = {}
 
-    def __call__(self, a_folder, b_folder, out_folder, config=None, overrides=(), b_keyframes=None) -> dict:
+    def __call__(self, a_folder, b_folder, out_folder, config=None, overrides=(), b_keyframes=None,
+                 threads=1) -> dict:
         out = Path(out_folder).name
         self.calls.append((Path(a_folder).name, Path(b_folder).name, out, b_keyframes))
+        self.threads[out] = threads
         if out in self.hooks:
             self.hooks[out]()
         if out in self.fail:
@@ -440,11 +458,13 @@ class _ThreadExecutor:
 
         self.fake, self.slots, self.cf = fake, slots, cf
         self.pool = cf.ThreadPoolExecutor(max_workers=slots)
+        self.cpus: dict[str, int] = {}
 
     def map(self, fn, args_list, on_error):
         return [self.fake(*args) for args in args_list]
 
-    def submit(self, fn, args, on_error):
+    def submit(self, fn, args, on_error, cpus=1):
+        self.cpus[Path(args[2]).name] = cpus
         return self.pool.submit(self.fake, *args)
 
     def wait_any(self, tasks):
@@ -507,11 +527,19 @@ def test_a_merge_starts_once_its_clusters_exist_not_at_the_end_of_its_round(tmp_
     started = threading.Event()
     waited = []
     fake = _FakeMerges(kf, hooks={"r1_0": started.set, "r0_2": lambda: waited.append(started.wait(60))})
-    final, failed, rounds = merge_tree(clusters, edges, _ThreadExecutor(fake, 2), tmp_path / "w")
+    ex = _ThreadExecutor(fake, 2)
+    final, failed, rounds = merge_tree(clusters, edges, ex, tmp_path / "w")
     assert waited == [True]
     assert [r["pairs"] for r in rounds] == [3, 1, 1] and len(final) == 1 and not failed
     order = [c[2] for c in fake.calls]
     assert order.index("r1_0") < order.index("r2_0") and order[-1] == "r2_0"
+    # the last merge is the only one that can run (nothing else is left): it takes the idle slot
+    # as a second thread (and asks the executor for 2 CPUs); round 0's three merges never run alone
+    assert fake.threads["r2_0"] == 2 and fake.threads["r0_0"] == fake.threads["r0_1"] == 1
+    assert ex.cpus == fake.threads
+    fake = _FakeMerges(kf)
+    merge_tree(clusters, edges, _ThreadExecutor(fake, 1), tmp_path / "w1")
+    assert set(fake.threads.values()) == {1}  # one slot: nothing to spare
 
 
 def test_a_failed_merge_mid_tree_goes_on_round_by_round(tmp_path: Path) -> None:

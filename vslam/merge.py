@@ -67,6 +67,7 @@ class MergeOptions:
             when it agrees with the alignment: a second place where B revisits A, e.g. B's end closing
             a loop onto A's start, is welded too.
         local_ba, global_ba: run the seam's local BA / the global BA.
+        threads: threads verifying B's keyframes (:func:`find_seam`; the result does not depend on it).
     """
 
     candidates: int = 3
@@ -77,10 +78,11 @@ class MergeOptions:
     weak_inliers: int = 15
     local_ba: bool = True
     global_ba: bool = True
+    threads: int = 1
 
     def __post_init__(self) -> None:
-        if self.candidates < 1 or self.min_agreeing < 1 or self.weak_inliers < 6:
-            raise ConfigError("merge: candidates and min_agreeing must be >= 1, weak_inliers >= 6")
+        if self.candidates < 1 or self.min_agreeing < 1 or self.weak_inliers < 6 or self.threads < 1:
+            raise ConfigError("merge: candidates, min_agreeing and threads must be >= 1, weak_inliers >= 6")
         if not (self.agree_m > 0 and self.agree_deg > 0 and self.agree_rel > 0):
             raise ConfigError("merge: agree_m, agree_deg and agree_rel must be positive")
 
@@ -108,87 +110,61 @@ class MergeResult:
 
 
 # ============================================================================ place recognition
-def _features(slam_map, kf, camera, sensor: str):
-    """The keyframe's keypoints with 3D points in its camera (depth, or its own map points for mono)."""
-    from vslam.loop.verification import Features
-
-    X = np.full((len(kf.uv_undist), 3), np.nan)
-    if sensor == "mono":
-        pid = kf.point_ids
-        ok = pid >= 0
-        ok[ok] = slam_map.points.alive[pid[ok]]
-        T = kf.T_cam_world
-        X[ok] = slam_map.points.position[pid[ok]] @ T[:3, :3].T + T[:3, 3]
-        X[X[:, 2] <= 0] = np.nan
-    else:
-        d = kf.depth
-        ok = np.isfinite(d) & (d > 0)
-        X[ok] = camera.backproject(kf.uv_undist[ok], d[ok])
-    return Features(kf.uv_undist, kf.descriptors, kf.octave, kf.depth, kf.u_right, X)
-
-
-def _keypoints_with_depth(slam_map, kf_ids: list[int], camera) -> dict:
-    """RGB-D / stereo: A's keypoints with depth but no map point (world points, descriptors, source
-    keyframe) as extra RANSAC candidates, as loop closing does on texture-poor scenes."""
-    Xs, Ds, Ss = [], [], []
-    for k in kf_ids:
-        f = slam_map.keyframes[k]
-        if f.descriptors is None:
-            continue
-        pid = f.point_ids
-        has = pid >= 0
-        has[has] = slam_map.points.alive[pid[has]]
-        ok = np.isfinite(f.depth) & (f.depth > 0) & ~has
-        if not ok.any():
-            continue
-        Xc = camera.backproject(f.uv_undist[ok], f.depth[ok])
-        Xs.append(Xc @ f.T_world_cam[:3, :3].T + f.T_world_cam[:3, 3])
-        Ds.append(f.descriptors[ok])
-        Ss.append(np.full(int(ok.sum()), k, np.int64))
-    if not Xs:
-        return {}
-    return {"extra_X": np.concatenate(Xs), "extra_desc": np.concatenate(Ds), "extra_src": np.concatenate(Ss)}
-
-
 def find_seam(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, vocabulary,
               options: MergeOptions) -> list[SeamMatch]:
-    """Every keyframe of B verified against its best BoW candidates in A (step 1 of the module docstring)."""
+    """Every keyframe of B verified against its best BoW candidates in A (step 1 of the module
+    docstring). The database queries run first, in this thread; the verifications (read-only on
+    both maps, each seeded by its B keyframe's id) in ``options.threads`` threads, their results
+    taken in B's keyframe order: the same matches whatever the threads."""
     from vslam.geometry.camera import stereo_bf
     from vslam.geometry.lie import inv_se3
-    from vslam.loop.verification import verify
+    from vslam.loop.verification import keyframe_features, keypoints_with_depth, verify
 
     cc = cfg.loop.closing
     need = min(options.weak_inliers, cc.min_inliers_mono if sensor == "mono" else cc.min_inliers)
     bf = stereo_bf(camera, sensor)
     scale_factor = cfg.features.scale_factor
-    matches: list[SeamMatch] = []
+    jobs = []  # (B keyframe, its features, A candidate id, BoW score, A's group)
     for kf in sorted(map_b.keyframes.values(), key=lambda k: k.id):
         if kf.bad or kf.descriptors is None or kf.descriptors.dtype != np.uint8 or len(kf.descriptors) < 2:
             continue
         bow = db_b.bow(kf.id) if db_b is not None and kf.id in db_b else vocabulary.transform(kf.descriptors)[0]
-        feat = _features(map_b, kf, camera, sensor)
-        best = None
+        feat = keyframe_features(map_b, kf, camera, sensor)
         for a_id, score in db_a.query(bow, max_results=options.candidates):
             a_kf = map_a.keyframes.get(a_id)
             if a_kf is None or a_kf.bad:
                 continue
             group = [a_id] + [k for k in map_a.covisible(a_id, cc.candidate_neighbours) if not map_a.keyframes[k].bad]
-            pts = map_a.local_point_ids(group)
-            extra = {} if sensor == "mono" or not cc.match_keypoints_with_depth else \
-                _keypoints_with_depth(map_a, group[: 1 + cc.depth_keypoint_neighbours], camera)
-            ver = verify(feat, map_a.points, pts, camera, sensor, ratio=cc.match_ratio,
-                         max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
-                         align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
-                         search_radius_px=cc.search_radius_px, scale_factor=scale_factor, bf=bf, seed=kf.id,
-                         refine_ransac=cc.refine_ransac_pose, guided_max_distance=cc.guided_max_descriptor_distance,
-                         guided_ratio=cc.guided_ratio, min_search_radius_px=cc.min_search_radius_px, **extra)
-            if ver is None or ver.n_inliers < need:
-                continue
-            if best is None or ver.n_inliers > best[1].n_inliers:
-                best = (a_id, ver, score)
-        if best is None:
+            jobs.append((kf, feat, a_id, score, group))
+
+    def run(job):
+        kf, feat, _, _, group = job
+        pts = map_a.local_point_ids(group)
+        extra = None if sensor == "mono" or not cc.match_keypoints_with_depth else \
+            keypoints_with_depth(map_a, group[: 1 + cc.depth_keypoint_neighbours], camera)
+        extra = {} if extra is None else dict(zip(("extra_X", "extra_desc", "extra_src"), extra))
+        return verify(feat, map_a.points, pts, camera, sensor, ratio=cc.match_ratio,
+                      max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
+                      align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,
+                      search_radius_px=cc.search_radius_px, scale_factor=scale_factor, bf=bf, seed=kf.id,
+                      refine_ransac=cc.refine_ransac_pose, guided_max_distance=cc.guided_max_descriptor_distance,
+                      guided_ratio=cc.guided_ratio, min_search_radius_px=cc.min_search_radius_px, **extra)
+
+    if options.threads > 1 and len(jobs) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(options.threads) as pool:
+            verified = list(pool.map(run, jobs))
+    else:
+        verified = [run(job) for job in jobs]
+    best: dict[int, tuple] = {}  # B keyframe id -> (A id, verification, score, keyframe, features)
+    for (kf, feat, a_id, score, _), ver in zip(jobs, verified):
+        if ver is None or ver.n_inliers < need:
             continue
-        a_id, ver, score = best
+        if kf.id not in best or ver.n_inliers > best[kf.id][1].n_inliers:
+            best[kf.id] = (a_id, ver, score, kf, feat)
+    matches: list[SeamMatch] = []
+    for a_id, ver, score, kf, feat in best.values():
         S = ver.S_world_cam @ inv_se3(kf.T_world_cam)
         Xc = feat.X_cam[ver.kp_idx]
         X_b = Xc @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]

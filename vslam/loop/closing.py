@@ -66,7 +66,8 @@ from vslam.loop.detector import LoopDetector
 from vslam.loop.essential_graph import EssentialGraph, build_essential_graph, write_back_corrections
 from vslam.loop.loop_fusion import fuse_loop_points
 from vslam.loop.segment_merging import try_merge
-from vslam.loop.verification import Features, Verified, VerifyParams, verify
+from vslam.loop.verification import (Features, Verified, VerifyParams, keyframe_features, keypoints_with_depth,
+                                     verify)
 from vslam.loop.vocabulary import BowVector, Vocabulary, load_default_vocabulary
 from vslam.map.config import PoseGraphConfig
 from vslam.map.database import KeyframeDatabase
@@ -298,23 +299,8 @@ class LoopCloser:
 
     # ------------------------------------------------------------------ verification
     def features_of(self, kf: KeyFrame) -> Features:
-        """The keyframe's keypoints with 3D points in its camera frame: from depth (RGB-D, stereo) or
-        from its own map points (monocular)."""
-        if self.sensor == "mono":
-            X = np.full((len(kf.uv_undist), 3), np.nan)
-            pid = kf.point_ids
-            ok = pid >= 0
-            ok[ok] = self.map.points.alive[pid[ok]]
-            Xw = self.map.points.position[pid[ok]]
-            T = kf.T_cam_world
-            X[ok] = Xw @ T[:3, :3].T + T[:3, 3]
-            X[X[:, 2] <= 0] = np.nan
-        else:
-            d = kf.depth
-            ok = np.isfinite(d) & (d > 0)
-            X = np.full((len(kf.uv_undist), 3), np.nan)
-            X[ok] = self.camera.backproject(kf.uv_undist[ok], d[ok])
-        return Features(kf.uv_undist, kf.descriptors, kf.octave, kf.depth, kf.u_right, X)
+        """:func:`vslam.loop.verification.keyframe_features` of ``kf`` in this map."""
+        return keyframe_features(self.map, kf, self.camera, self.sensor)
 
     def _group(self, match_id: int, exclude: set[int]) -> list[int]:
         cc = self.config.closing
@@ -322,30 +308,8 @@ class LoopCloser:
         return [k for k in group if k in self.map.keyframes]
 
     def _keypoints_with_depth(self, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """World points, descriptors and source keyframe of the keypoints with depth but no map point
-        of ``kf_ids`` (RGB-D / stereo; None for monocular). On texture-poor scenes most keypoints
-        keep no map point (local mapping culls points few keyframes re-observe: on TUM fr3/cabinet
-        keyframe 0 keeps none of its 216), so without these a revisit has nothing to match."""
-        if self.sensor == "mono":
-            return None
-        Xs, Ds, Ss = [], [], []
-        for k in kf_ids:
-            f = self.map.keyframes[k]
-            if f.descriptors is None or f.depth is None:
-                continue
-            pid = f.point_ids
-            has_point = pid >= 0
-            has_point[has_point] = self.map.points.alive[pid[has_point]]
-            ok = np.isfinite(f.depth) & (f.depth > 0) & ~has_point
-            if not ok.any():
-                continue
-            Xc = self.camera.backproject(f.uv_undist[ok], f.depth[ok])
-            Xs.append(Xc @ f.T_world_cam[:3, :3].T + f.T_world_cam[:3, 3])
-            Ds.append(f.descriptors[ok])
-            Ss.append(np.full(int(ok.sum()), k, np.int64))
-        if not Xs:
-            return None
-        return np.concatenate(Xs), np.concatenate(Ds), np.concatenate(Ss)
+        """:func:`vslam.loop.verification.keypoints_with_depth` (None for monocular)."""
+        return None if self.sensor == "mono" else keypoints_with_depth(self.map, kf_ids, self.camera)
 
     def _verify_group(self, kf: KeyFrame, match_id: int) -> Verified | None:
         """:func:`verify` of ``kf`` against the candidate ``match_id`` and its covisible keyframes: their

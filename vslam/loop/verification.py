@@ -46,6 +46,52 @@ class Features:
     X_cam: np.ndarray | None = None
 
 
+def keyframe_features(slam_map, kf, camera: PinholeCamera, sensor: str) -> Features:
+    """A keyframe's keypoints as :class:`Features`, with 3D points in its camera frame: from depth
+    (RGB-D, stereo: ``X = d K^-1 [u v 1]^T``) or from its own map points (monocular: ``X = R_cw X_w +
+    t_cw``, those in front of the camera)."""
+    X = np.full((len(kf.uv_undist), 3), np.nan)
+    if sensor == "mono":
+        pid = kf.point_ids
+        ok = pid >= 0
+        ok[ok] = slam_map.points.alive[pid[ok]]
+        T = kf.T_cam_world
+        X[ok] = slam_map.points.position[pid[ok]] @ T[:3, :3].T + T[:3, 3]
+        X[X[:, 2] <= 0] = np.nan
+    else:
+        d = kf.depth
+        ok = np.isfinite(d) & (d > 0)
+        X[ok] = camera.backproject(kf.uv_undist[ok], d[ok])
+    return Features(kf.uv_undist, kf.descriptors, kf.octave, kf.depth, kf.u_right, X)
+
+
+def keypoints_with_depth(slam_map, kf_ids: list[int],
+                         camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """World points, descriptors and source keyframe of the keypoints of ``kf_ids`` that have depth
+    but no map point (RGB-D / stereo; None when there are none): more RANSAC candidates for
+    :func:`verify` (``extra_X``, ``extra_desc``, ``extra_src``). On texture-poor scenes most keypoints
+    keep no map point (local mapping culls points few keyframes re-observe: on TUM fr3/cabinet
+    keyframe 0 keeps none of its 216), so without these a revisit has nothing to match."""
+    Xs, Ds, Ss = [], [], []
+    for k in kf_ids:
+        f = slam_map.keyframes[k]
+        if f.descriptors is None or f.depth is None:
+            continue
+        pid = f.point_ids
+        has_point = pid >= 0
+        has_point[has_point] = slam_map.points.alive[pid[has_point]]
+        ok = np.isfinite(f.depth) & (f.depth > 0) & ~has_point
+        if not ok.any():
+            continue
+        Xc = camera.backproject(f.uv_undist[ok], f.depth[ok])
+        Xs.append(Xc @ f.T_world_cam[:3, :3].T + f.T_world_cam[:3, 3])
+        Ds.append(f.descriptors[ok])
+        Ss.append(np.full(int(ok.sum()), k, np.int64))
+    if not Xs:
+        return None
+    return np.concatenate(Xs), np.concatenate(Ds), np.concatenate(Ss)
+
+
 @dataclass
 class Verified:
     """An accepted geometric match.

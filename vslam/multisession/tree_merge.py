@@ -66,11 +66,11 @@ class Cluster:
 
 
 def merge_task(a_folder: str, b_folder: str, out_folder: str, config: str | None = None,
-               overrides: tuple[str, ...] = (), b_keyframes: list[int] | None = None) -> dict:
+               overrides: tuple[str, ...] = (), b_keyframes: list[int] | None = None, threads: int = 1) -> dict:
     """Task: merge the map in ``b_folder`` into the map in ``a_folder`` (:func:`vslam.multisession.weld.weld`,
-    place recognition on ``b_keyframes``, all of B if that finds no overlap) and save the result
-    (map, database, camera, metadata, and A's ``config.yaml``) into ``out_folder``. Never raises; a
-    record ``{ok, S_a_b, offset, keyframes, ...}`` or ``{ok: False, error}``."""
+    place recognition on ``b_keyframes``, all of B if that finds no overlap, verified in ``threads``
+    threads) and save the result (map, database, camera, metadata, and A's ``config.yaml``) into
+    ``out_folder``. Never raises; a record ``{ok, S_a_b, offset, keyframes, ...}`` or ``{ok: False, error}``."""
     from vslam.api import resolve_config
     from vslam.errors import MergeError
     from vslam.map.io import load_run_map, save_map
@@ -86,12 +86,12 @@ def merge_task(a_folder: str, b_folder: str, out_folder: str, config: str | None
         cfg = resolve_config(cfg_file, list(overrides))
         source = str(Path(b_folder).resolve())
         try:
-            s = weld(map_a, db_a, map_b, db_b, cam, meta.get("sensor"), cfg, b_keyframes, source)
+            s = weld(map_a, db_a, map_b, db_b, cam, meta.get("sensor"), cfg, b_keyframes, source, threads)
         except MergeError:
             if not b_keyframes:
                 raise
             log.info("no overlap at the known seam of %s; trying every keyframe of it", b_folder)
-            s = weld(map_a, db_a, map_b, db_b, cam, meta.get("sensor"), cfg, None, source)
+            s = weld(map_a, db_a, map_b, db_b, cam, meta.get("sensor"), cfg, None, source, threads)
         t1 = time.perf_counter()
         out = Path(out_folder)
         shutil.rmtree(out, ignore_errors=True)
@@ -164,8 +164,8 @@ def _oriented(clusters: list, i: int, j: int) -> tuple[int, int]:
 
 
 def _task_args(a: Cluster, b: Cluster, folder: str, edges: list[dict], config: str | None,
-               overrides: tuple[str, ...]) -> tuple:
-    return (a.folder, b.folder, folder, config, tuple(overrides), seam_keyframes(b, a, edges))
+               overrides: tuple[str, ...], threads: int = 1) -> tuple:
+    return (a.folder, b.folder, folder, config, tuple(overrides), seam_keyframes(b, a, edges), threads)
 
 
 def _step(ca: Cluster, cb: Cluster, via: dict, rec: dict, folder: str) -> tuple[Cluster | None, dict]:
@@ -306,14 +306,14 @@ def _run_plan(ex, plan: list[list[PlannedMerge]], keyframes: dict, real: dict[in
     done: dict[tuple[int, int], tuple] = {}
     stop: int | None = None
     while True:
-        for m in list(todo):
-            if len(running) >= slots:
-                break
-            if (stop is None or m.r <= stop) and m.a in real and m.b in real:
-                todo.remove(m)
-                args = _task_args(real[m.a], real[m.b], str(work / f"r{m.r}_{m.k}"), edges, config, overrides)
-                t0 = time.perf_counter()
-                running[ex.submit(merge_task, args, _failed_merge)] = (m, args, t0)
+        ready = [m for m in todo if (stop is None or m.r <= stop) and m.a in real and m.b in real]
+        for m in ready[:max(slots - len(running), 0)]:
+            todo.remove(m)
+            # the only merge that can run until it ends (the others wait for it) uses a second slot
+            threads = 2 if not running and len(ready) == 1 and slots >= 2 else 1
+            args = _task_args(real[m.a], real[m.b], str(work / f"r{m.r}_{m.k}"), edges, config, overrides, threads)
+            t0 = time.perf_counter()
+            running[ex.submit(merge_task, args, _failed_merge, threads)] = (m, args, t0)
         if not running:
             return done, stop
         task, rec = ex.wait_any(list(running))

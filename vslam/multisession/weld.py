@@ -27,18 +27,19 @@ SEAM_CANDIDATES = 2
 
 
 def weld(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, b_keyframes: list[int] | None,
-         source_b: str = "") -> dict[str, Any]:
+         source_b: str = "", threads: int = 1) -> dict[str, Any]:
     """Merge ``map_b`` into ``map_a`` (in place; ``db_b``'s vectors join ``db_a`` under the new ids),
-    place recognition on ``b_keyframes`` of B (all when None). Returns the statistics, with
+    place recognition on ``b_keyframes`` of B (all when None) in ``threads`` threads. Returns the statistics, with
     ``S_a_b`` and ``keyframe_id_offset``. Raises :class:`vslam.errors.MergeError` when no overlap."""
     from vslam.merge import MergeOptions, merge_maps
 
     t0 = time.perf_counter()
-    options = MergeOptions(global_ba=False, candidates=SEAM_CANDIDATES if b_keyframes else MergeOptions.candidates)
+    options = MergeOptions(global_ba=False, candidates=SEAM_CANDIDATES if b_keyframes else MergeOptions.candidates,
+                           threads=threads)
     res = merge_maps(map_a, db_a, map_b, db_b, camera, sensor, cfg, options=options, source_b=source_b,
                      b_keyframes=b_keyframes)
     st, ba = res.stats, res.stats.get("local_ba") or {}
     keep = ("keyframes", "queried_b_keyframes", "seam_keyframes", "weak_seam_keyframes", "alignment_inliers",
             "fused_points", "scale", "keyframe_id_offset")
     return {**{k: st[k] for k in keep}, "S_a_b": res.S_a_b, "local_ba_s": round(ba.get("ms", 0.0) / 1e3, 2),
-            "weld_s": round(time.perf_counter() - t0, 2)}
+            "threads": threads, "weld_s": round(time.perf_counter() - t0, 2)}
