@@ -309,11 +309,12 @@ def _run_plan(ex, plan: list[list[PlannedMerge]], keyframes: dict, real: dict[in
         ready = [m for m in todo if (stop is None or m.r <= stop) and m.a in real and m.b in real]
         for m in ready[:max(slots - len(running), 0)]:
             todo.remove(m)
-            # the only merge that can run until it ends (the others wait for it) uses a second slot
-            threads = 2 if not running and len(ready) == 1 and slots >= 2 else 1
+            # the only merge ready: no other can start before a running one ends, so it verifies in a
+            # second thread; it asks for that CPU only when nothing runs (else it would wait for it)
+            threads = 2 if len(ready) == 1 and slots >= 2 else 1
             args = _task_args(real[m.a], real[m.b], str(work / f"r{m.r}_{m.k}"), edges, config, overrides, threads)
             t0 = time.perf_counter()
-            running[ex.submit(merge_task, args, _failed_merge, threads)] = (m, args, t0)
+            running[ex.submit(merge_task, args, _failed_merge, 1 if running else threads)] = (m, args, t0)
         if not running:
             return done, stop
         task, rec = ex.wait_any(list(running))
