@@ -105,7 +105,11 @@ def test_a_task_on_every_cpu_leaves_the_idle_workers_alive(monkeypatch):
             return os.getpid()
 
         task = ray.remote(num_cpus=1)(pid)
-        workers = set(ray.get([task.remote(0.3) for _ in range(4)]))
+        workers: set[int] = set()
+        for _ in range(10):  # a worker slow to start (a loaded machine) lets the other take the first pair
+            workers |= set(ray.get([task.remote(0.3) for _ in range(2)]))
+            if len(workers) == 2:
+                break
         assert len(workers) == 2
         assert ray.get(task.options(num_cpus=2).remote(1.5)) in workers  # the idle one idles > 1 s
         assert set(ray.get([task.remote(1.0), task.remote(0.05)])) == workers
