@@ -140,9 +140,8 @@ def find_seam(map_a, db_a, map_b, db_b, camera, sensor: str, cfg, vocabulary,
     def run(job):
         kf, feat, _, _, group = job
         pts = map_a.local_point_ids(group)
-        extra = None if sensor == "mono" or not cc.match_keypoints_with_depth else \
+        extra = {} if sensor == "mono" or not cc.match_keypoints_with_depth else \
             keypoints_with_depth(map_a, group[: 1 + cc.depth_keypoint_neighbours], camera)
-        extra = {} if extra is None else dict(zip(("extra_X", "extra_desc", "extra_src"), extra))
         return verify(feat, map_a.points, pts, camera, sensor, ratio=cc.match_ratio,
                       max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,
                       align_threshold_m=cc.align_threshold_m, align_threshold_rel=cc.align_threshold_rel,

@@ -307,10 +307,6 @@ class LoopCloser:
         group = [match_id] + [k for k in self.map.covisible(match_id, cc.candidate_neighbours) if k not in exclude]
         return [k for k in group if k in self.map.keyframes]
 
-    def _keypoints_with_depth(self, kf_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """:func:`vslam.loop.verification.keypoints_with_depth` (None for monocular)."""
-        return None if self.sensor == "mono" else keypoints_with_depth(self.map, kf_ids, self.camera)
-
     def _verify_group(self, kf: KeyFrame, match_id: int) -> Verified | None:
         """:func:`verify` of ``kf`` against the candidate ``match_id`` and its covisible keyframes: their
         map points (minus those the query side observes) and, RGB-D / stereo, their keypoints with depth."""
@@ -320,10 +316,9 @@ class LoopCloser:
         pts = self.map.local_point_ids(group)
         # points the query side already observes are not loop evidence
         pts = pts[~np.isin(pts, self.map.local_point_ids([k for k in q_side if k in self.map.keyframes]))]
-        extra = self._keypoints_with_depth(group[: 1 + cc.depth_keypoint_neighbours]) \
-            if cc.match_keypoints_with_depth else None
-        ex = {} if extra is None else {"extra_X": extra[0], "extra_desc": extra[1], "extra_src": extra[2]}
-        if extra is not None and self._extra_matches is not None:
+        ex = keypoints_with_depth(self.map, group[: 1 + cc.depth_keypoint_neighbours], self.camera) \
+            if cc.match_keypoints_with_depth and self.sensor != "mono" else {}
+        if ex and self._extra_matches is not None:
             ex["extra_matches"] = self._extra_matches.setdefault(kf.id, {})
         params = VerifyParams(
             ratio=cc.match_ratio, max_distance=cc.max_descriptor_distance, min_matches=cc.min_matches,

@@ -65,11 +65,10 @@ def keyframe_features(slam_map, kf, camera: PinholeCamera, sensor: str) -> Featu
     return Features(kf.uv_undist, kf.descriptors, kf.octave, kf.depth, kf.u_right, X)
 
 
-def keypoints_with_depth(slam_map, kf_ids: list[int],
-                         camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def keypoints_with_depth(slam_map, kf_ids: list[int], camera: PinholeCamera) -> dict[str, np.ndarray]:
     """World points, descriptors and source keyframe of the keypoints of ``kf_ids`` that have depth
-    but no map point (RGB-D / stereo; None when there are none): more RANSAC candidates for
-    :func:`verify` (``extra_X``, ``extra_desc``, ``extra_src``). On texture-poor scenes most keypoints
+    but no map point (RGB-D / stereo), as :func:`verify`'s keyword arguments ``extra_X``, ``extra_desc``
+    and ``extra_src`` (empty when there are none): more RANSAC candidates. On texture-poor scenes most keypoints
     keep no map point (local mapping culls points few keyframes re-observe: on TUM fr3/cabinet
     keyframe 0 keeps none of its 216), so without these a revisit has nothing to match."""
     Xs, Ds, Ss = [], [], []
@@ -88,8 +87,8 @@ def keypoints_with_depth(slam_map, kf_ids: list[int],
         Ds.append(f.descriptors[ok])
         Ss.append(np.full(int(ok.sum()), k, np.int64))
     if not Xs:
-        return None
-    return np.concatenate(Xs), np.concatenate(Ds), np.concatenate(Ss)
+        return {}
+    return {"extra_X": np.concatenate(Xs), "extra_desc": np.concatenate(Ds), "extra_src": np.concatenate(Ss)}
 
 
 @dataclass
