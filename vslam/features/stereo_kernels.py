@@ -1,6 +1,6 @@
 """Compiled (numba) kernel of :func:`vslam.features.stereo.refine_disparity_row`: the row-constrained
-(1-D) Lucas-Kanade disparity refinement, one point at a time in one loop (window sums, then
-Gauss-Newton).
+(1-D) Lucas-Kanade disparity refinement, one point at a time in one loop: Gauss-Newton, with the
+window sums of each window start it visits.
 
 Every window sum is a plain float64 sum in a fixed order (no BLAS, no fused multiply-add: numba
 never contracts ``a * b + c`` without ``fastmath``), so the result is the same on every CPU and
