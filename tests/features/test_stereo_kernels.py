@@ -3,7 +3,7 @@
 BLAS call), on 8-bit images, synthetic and real (KITTI 06).
 
 Where the two can differ, and by how much (the tolerances below): for 8-bit images every window
-sum but one is a sum of integers or halves below 2^53, exact in float64 in any order, and the
+sum but one is a sum of integers, halves or quarters below 2^53, exact in float64 in any order, and the
 left window mean is the same exact sum divided by ``n`` on both sides. The one inexact sum is
 ``C = sum I_l g`` over the zero-mean left window: the kernel adds its ``n = (2w+1)^2`` terms in
 loop order, NumPy pairwise, each within ``gamma_n sum|I_l g|`` of the exact value

@@ -5,7 +5,7 @@ window sums of each window start it visits.
 Every window sum is a plain float64 sum in a fixed order (no BLAS, no fused multiply-add: numba
 never contracts ``a * b + c`` without ``fastmath``), so the result is the same on every CPU and
 numba target. For 8-bit images the per-column sums of ``I_r``, ``g = dI_r/dx`` and their
-products are integers or halves, exact in float64; ``sum I_l g`` over the zero-mean left window
+products are integers, halves or quarters, exact in float64 in any order; ``sum I_l g`` over the zero-mean left window
 is not exact, with a rounding error of at most ``n u sum|I_l g|`` for ``n = (2w+1)^2`` terms and
 ``u = 2^-53`` (Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., eq. 4.4).
 ``tests/features/test_stereo_kernels.py`` compares the kernel against a NumPy oracle with
