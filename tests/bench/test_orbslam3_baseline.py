@@ -224,11 +224,13 @@ def test_comparison_table_marks_paced_baselines():
     comp = baseline_comparison(summarize(rows))
     assert len(comp) == 1 and comp[0]["ate_ratio"] == pytest.approx(1.5) and comp[0]["fps_ratio"] == pytest.approx(0.4)
     assert comp[0]["tracked_baseline"] == pytest.approx(0.5)
-    assert "| k07 | mono | orbslam3 | 0.3000 | 0.2000 | 1.50 | - / - | - | - | 4.0 | 10.0 (paced) | 0.40 | 100 % | 50 % |" \
+    assert "| k07 | mono | orbslam3 | 0.3000 | 0.2000 | 1.50 | - / - | - | - | - | 4.0 | 10.0 (paced) | 0.40 | 100 % | 50 % |" \
         in results_markdown(rows)
     rows[0].update(ate_common=0.12, common_frames=5)
     rows[1].update(ate_common=0.2, common_frames=5)
-    assert "| 1.50 | 0.1200 / 0.2000 | 0.60 | 5 | 4.0 |" in results_markdown(rows)
+    assert "| 1.50 | 0.1200 / 0.2000 | 0.60 | 5 | - | 4.0 |" in results_markdown(rows)
+    rows[1].update(ate_between=0.03, error_correlation=0.95)
+    assert "| 0.60 | 5 | 0.0300 (0.95) | 4.0 |" in results_markdown(rows)
     assert "vslam vs baseline" not in results_markdown(rows[2:])
 
 
@@ -249,9 +251,42 @@ def test_common_frame_ate_scores_both_on_the_frames_both_tracked():
     ours[12:, 2, 3] += np.linspace(0.0, 0.3, n - 12)  # and a drift in the hard second half
     theirs = T[:10].copy()
     theirs[:, 2, 3] += np.where(np.arange(10) % 2, 0.005, -0.005)  # +-5 mm on the frames it kept
-    a, b, k = common_frame_ate(Trajectory(t, ours), Trajectory(t[:10], theirs), gt, "se3")
-    assert k == 10
-    assert a == pytest.approx(0.002, rel=0.05) and b == pytest.approx(0.005, rel=0.05)
+    c = common_frame_ate(Trajectory(t, ours), Trajectory(t[:10], theirs), gt, "se3")
+    assert c.frames == 10
+    assert c.ours == pytest.approx(0.002, rel=0.05) and c.theirs == pytest.approx(0.005, rel=0.05)
+    # the same +-z pattern, 2 and 5 mm: 3 mm apart, fully correlated (what SE(3) absorbs of the
+    # alternating offsets is below 5 % of them: the same tolerance as above)
+    assert c.between == pytest.approx(0.003, rel=0.05) and c.correlation == pytest.approx(1.0, abs=0.05)
+
+
+def test_common_frames_tell_a_shared_error_from_independent_ones():
+    """Two systems with the same error (a wrong ground-truth stretch) against two with errors of their
+    own: the same ATE each, but 0 apart with correlation 1, or sqrt(2) ATE apart with correlation 0."""
+    from vslam.bench.common_frames import common_frame_ate
+    from vslam.trajectory import Trajectory
+
+    n = 40
+    t = np.arange(n) * 0.1
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.linspace(0, 4, n)
+    T[:, 1, 3] = np.cos(t)
+    gt = Trajectory(t, T)
+    bump = np.zeros(n)
+    bump[10:20] = 0.01  # 1 cm off in z over a quarter: in the ground truth, so both "see" it
+    shared = T.copy()
+    shared[:, 2, 3] -= bump
+    c = common_frame_ate(Trajectory(t, shared), Trajectory(t, shared.copy()), gt, "se3")
+    assert c.ours == pytest.approx(c.theirs) and c.ours > 0.003
+    assert c.between < 1e-9 and c.correlation == pytest.approx(1.0)
+    # independent errors of the same size: z on one, y on the other (orthogonal, so uncorrelated)
+    mine, theirs = T.copy(), T.copy()
+    mine[:, 2, 3] += np.where(np.arange(n) % 2, 0.004, -0.004)
+    theirs[:, 1, 3] += np.where(np.arange(n) % 2, 0.004, -0.004)
+    c = common_frame_ate(Trajectory(t, mine), Trajectory(t, theirs), gt, "se3")
+    # exactly sqrt(2) ATE apart if the errors stayed orthogonal; each SE(3) alignment takes a little of
+    # its error into a common shift and rotation (measured: 0.04 % off, correlation 0.0007)
+    assert c.between == pytest.approx(np.sqrt(c.ours**2 + c.theirs**2), rel=0.01)
+    assert abs(c.correlation) < 0.05
 
 
 @pytest.mark.slow

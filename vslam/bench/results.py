@@ -69,6 +69,8 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
         metrics["tracked_fraction"] = tracked
         metrics["ate_common"] = [r.get("ate_common") for r in ok]  # vs a baseline, frames both tracked
         metrics["common_frames"] = [r.get("common_frames") for r in ok]
+        metrics["ate_between"] = [r.get("ate_between") for r in ok]  # the two systems' distance on them
+        metrics["error_correlation"] = [r.get("error_correlation") for r in ok]
         for key, values in metrics.items():
             v = _finite(values)
             s[key] = None if len(v) == 0 else {
@@ -136,8 +138,16 @@ def baseline_comparison(summary: Sequence[dict]) -> list[dict]:
             "ate_common_baseline": med(base, "ate_common"),
             "ate_common_ratio": _ratio(ours.get("ate_common"), base.get("ate_common")),
             "common_frames": med(base, "common_frames"),
+            "ate_between": med(base, "ate_between"),
+            "error_correlation": med(base, "error_correlation"),
         })
     return out
+
+
+def _apart(between: float | None, correlation: float | None) -> str:
+    if between is None:
+        return "-"
+    return f"{between:.4f}" + ("" if correlation is None else f" ({correlation:.2f})")
 
 
 def comparison_markdown(comparison: Sequence[dict]) -> str:
@@ -149,8 +159,8 @@ def comparison_markdown(comparison: Sequence[dict]) -> str:
         return "-" if v is None else fmt.format(v)
 
     lines = ["| run | sensor | baseline | ATE vslam [m] | ATE baseline [m] | ATE ratio | ATE both tracked: vslam / "
-             "baseline [m] | ratio | frames both tracked | frames/s vslam | frames/s baseline | speed ratio | "
-             "tracked vslam | tracked baseline |", "|" + "---|" * 14]
+             "baseline [m] | ratio | frames both tracked | apart [m] (error correlation) | frames/s vslam | "
+             "frames/s baseline | speed ratio | tracked vslam | tracked baseline |", "|" + "---|" * 15]
     for c in comparison:
         fps_b = num(c["fps_baseline"], "{:.1f}") + (" (paced)" if c["baseline_paced"] else "")
         lines.append("| " + " | ".join([
@@ -158,6 +168,7 @@ def comparison_markdown(comparison: Sequence[dict]) -> str:
             num(c["ate_baseline"], "{:.4f}"), num(c["ate_ratio"], "{:.2f}"),
             f'{num(c.get("ate_common_vslam"), "{:.4f}")} / {num(c.get("ate_common_baseline"), "{:.4f}")}',
             num(c.get("ate_common_ratio"), "{:.2f}"), num(c.get("common_frames"), "{:.0f}"),
+            _apart(c.get("ate_between"), c.get("error_correlation")),
             num(c["fps_vslam"], "{:.1f}"), fps_b,
             num(c["fps_ratio"], "{:.2f}"),
             num(None if c["tracked_vslam"] is None else 100 * c["tracked_vslam"], "{:.0f} %"),
@@ -195,7 +206,11 @@ def results_markdown(rows: Sequence[dict], meta: dict | None = None) -> str:
                      "stats.json), so its frames/s is capped by that rate and the speed ratio is an upper "
                      "bound (vslam may be relatively slower than shown). `ATE both tracked`: each system "
                      "scored on the frames both have a pose for (same repeat, own alignment), so a system "
-                     "that drops hard frames is not scored on its easy ones only.\n")
+                     "that drops hard frames is not scored on its easy ones only. `apart`: the RMS distance "
+                     "between the two trajectories on those frames, each aligned to the ground truth, and in "
+                     "brackets the correlation of their errors: near 1, with the two closer to each other than "
+                     "to the ground truth, both systems make the same error there (in the ground truth, the "
+                     "calibration or the sequence), and the ATE ratio says little about which is better.\n")
         parts.append(comparison)
     failed = [r for r in rows if r.get("error")]
     if failed:
