@@ -82,6 +82,9 @@ def test_repeats_and_baseline_of_a_real_sequence_in_one_plot(tmp_path, shared_da
         assert f"ATE {r['ate_rmse']:.4f} m" in c.label
         err = np.linalg.norm(c.positions - gt.positions, axis=1)
         assert np.sqrt(np.mean(err ** 2)) == pytest.approx(c.ate, rel=1e-6) and c.ate < 0.1
+        # the lower panel's curve: the same errors, at the trajectory's own timestamps
+        t, err_panel = overlay.error_over_time(c, gt)
+        assert np.array_equal(t, c.timestamps) and np.allclose(err_panel, err, rtol=0, atol=1e-12)
 
 
 def test_se3_for_rgbd_and_no_plot_for_a_lone_trajectory(tmp_path, shared_data):

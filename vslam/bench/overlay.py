@@ -7,7 +7,10 @@ ground truth of the sequence when it has one. Each trajectory is aligned to the 
 its ATE is (:func:`vslam.eval.evaluate_trajectories`: SE(3), Sim(3) for a monocular run) and its
 ATE is in the legend; without ground truth every trajectory is aligned (the same way) to the
 first vslam repeat, as ``evo_traj --ref`` does, so repeats that differ only by their start frame
-coincide. A trajectory that cannot be aligned is drawn as it is, said in the legend.
+coincide. A trajectory that cannot be aligned is drawn as it is, said in the legend. With ground
+truth, a second panel draws each aligned trajectory's position error over time
+(:func:`error_over_time`): peaks that vslam and the baseline share at the same frames are an error
+both make (see :mod:`vslam.bench.common_frames`), not one system's.
 
 The ground truth is the sequence's own (:func:`vslam.datasets.ground_truth.resolve_ground_truth`,
 what ``vslam run`` evaluates against), else a ``groundtruth.txt`` in one of the run folders (the
@@ -31,7 +34,7 @@ import numpy as np
 
 from vslam.errors import VslamError
 from vslam.outputs import atomic_write_bytes
-from vslam.trajectory import Trajectory, read_trajectory
+from vslam.trajectory import Trajectory, associate_timestamps, read_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +162,16 @@ def aligned_curves(group: Sequence[dict], output: str | Path, gt: Trajectory | N
     return curves
 
 
+def error_over_time(curve: Curve, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """``(timestamps, error)``: the distance of each aligned position of ``curve`` from the ground
+    truth's position at the same time (associated as the ATE is, within ``EvalConfig.max_diff``);
+    its RMS is the curve's ATE."""
+    from vslam.eval.evaluate import EvalConfig
+
+    i, j = associate_timestamps(curve.timestamps, gt.timestamps, EvalConfig().max_diff)
+    return curve.timestamps[i], np.linalg.norm(curve.positions[i] - gt.positions[j], axis=1)
+
+
 def _colors(curves: Sequence[Curve]) -> list[str]:
     systems = [s for s in dict.fromkeys(c.system for c in curves) if s != "vslam"]
     out, used = [], {}
@@ -181,9 +194,11 @@ def overlay_figure(run: str, curves: Sequence[Curve], gt: Trajectory | None, gt_
     pts = np.concatenate([c.positions for c in curves])
     gt_pos = _gt_span(gt, curves) if gt is not None else None
     a, b = top_view_axes(gt_pos if gt_pos is not None and len(gt_pos) >= 2 else pts) if len(pts) >= 2 else (0, 1)
-    fig = Figure(figsize=(7.2, 6.0))
+    errors = gt is not None and any(c.aligned for c in curves)
+    fig = Figure(figsize=(7.2, 8.2 if errors else 6.0))
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
+    grid = fig.add_gridspec(2, 1, height_ratios=(3.0, 1.1)) if errors else None
+    ax = fig.add_subplot(grid[0]) if grid is not None else fig.add_subplot(1, 1, 1)
     if gt_pos is not None and len(gt_pos):
         ax.plot(gt_pos[:, a], gt_pos[:, b], "--", color="0.2", lw=1.6, label="ground truth", zorder=3)
     for c, color in zip(curves, _colors(curves)):
@@ -201,10 +216,26 @@ def overlay_figure(run: str, curves: Sequence[Curve], gt: Trajectory | None, gt_
     ref = f"aligned to the ground truth ({modes}, as the ATE)" if gt is not None else \
         f"no ground truth: aligned to {next((c for c in curves if c.reference), curves[0]).label} ({modes})"
     ax.set_title(f"{run}: {len(curves)} trajectories from above, {ref}", fontsize=10)
+    if errors:
+        _error_panel(fig.add_subplot(grid[1]), curves, gt)
     if gt is not None and gt_source:
         fig.suptitle(f"ground truth: {gt_source}", fontsize=8, color="0.3")
     fit_titles(fig)
     return fig
+
+
+def _error_panel(ax, curves: Sequence[Curve], gt: Trajectory) -> None:
+    """Each aligned curve's position error over time (seconds from the first pose drawn)."""
+    series = [(color, *error_over_time(c, gt)) for c, color in zip(curves, _colors(curves)) if c.aligned]
+    t0 = min((t[0] for _, t, _ in series if len(t)), default=0.0)
+    for color, t, err in series:
+        line = _with_gaps(t, np.column_stack([t - t0, err]))
+        ax.plot(line[:, 0], line[:, 1], "-", color=color, lw=1.0, alpha=0.85)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.3)
+    ax.set_title("position error of each trajectory above (its RMS is the ATE)", fontsize=9)
 
 
 def _gt_span(gt: Trajectory, curves: Sequence[Curve]) -> np.ndarray:
