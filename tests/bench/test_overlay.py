@@ -83,8 +83,7 @@ def test_repeats_and_baseline_of_a_real_sequence_in_one_plot(tmp_path, shared_da
         err = np.linalg.norm(c.positions - gt.positions, axis=1)
         assert np.sqrt(np.mean(err ** 2)) == pytest.approx(c.ate, rel=1e-6) and c.ate < 0.1
         # the lower panel's curve: the same errors, at the trajectory's own timestamps
-        t, err_panel = overlay.error_over_time(c, gt)
-        assert np.array_equal(t, c.timestamps) and np.allclose(err_panel, err, rtol=0, atol=1e-12)
+        assert np.array_equal(c.error_t, c.timestamps) and np.allclose(c.error, err, rtol=0, atol=1e-12)
 
 
 def test_se3_for_rgbd_and_no_plot_for_a_lone_trajectory(tmp_path, shared_data):
@@ -129,7 +128,7 @@ def test_without_ground_truth_every_repeat_is_aligned_to_the_first(tmp_path):
     assert [r["repeat"] for r in group] == [0, 1]
     assert overlay.sequence_ground_truth(group, out, {}) == (None, "")
     curves = overlay.aligned_curves(group, out, None)
-    assert all(c.ate is None and c.aligned and "ATE" not in c.label for c in curves)
+    assert all(c.ate is None and c.aligned and "ATE" not in c.label and c.error is None for c in curves)
     assert [c.reference for c in curves] == [True, False]
     ref = np.loadtxt(out / "runs/nogt/0/trajectory.txt")[:, 1:4]
     assert np.allclose(curves[0].positions, ref)  # the reference as it is, the other aligned onto it

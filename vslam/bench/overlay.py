@@ -8,9 +8,9 @@ its ATE is (:func:`vslam.eval.evaluate_trajectories`: SE(3), Sim(3) for a monocu
 ATE is in the legend; without ground truth every trajectory is aligned (the same way) to the
 first vslam repeat, as ``evo_traj --ref`` does, so repeats that differ only by their start frame
 coincide. A trajectory that cannot be aligned is drawn as it is, said in the legend. With ground
-truth, a second panel draws each aligned trajectory's position error over time
-(:func:`error_over_time`): peaks that vslam and the baseline share at the same frames are an error
-both make (see :mod:`vslam.bench.common_frames`), not one system's.
+truth, a second panel draws each aligned trajectory's position error over time (the per-pose errors
+of its ATE): peaks that vslam and the baseline share at the same frames are an error both make (see
+:mod:`vslam.bench.common_frames`), not one system's.
 
 The ground truth is the sequence's own (:func:`vslam.datasets.ground_truth.resolve_ground_truth`,
 what ``vslam run`` evaluates against), else a ``groundtruth.txt`` in one of the run folders (the
@@ -34,7 +34,7 @@ import numpy as np
 
 from vslam.errors import VslamError
 from vslam.outputs import atomic_write_bytes
-from vslam.trajectory import Trajectory, associate_timestamps, read_trajectory
+from vslam.trajectory import Trajectory, read_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,9 @@ class Curve:
     align: str
     timestamps: np.ndarray
     reference: bool = False  # the one the others are aligned to (no ground truth)
+    # per pose matched to the ground truth: its time and position error (the ATE's own errors)
+    error_t: np.ndarray | None = None
+    error: np.ndarray | None = None
 
 
 def base_name(row: dict) -> tuple[str, str]:
@@ -145,7 +148,7 @@ def aligned_curves(group: Sequence[dict], output: str | Path, gt: Trajectory | N
     for r, est in zip(group, trajs):
         system = base_name(r)[1]
         mode = align_mode(r, group[0].get("sensor"))
-        positions, ate, aligned = est.positions, None, False
+        positions, ate, aligned, error_t, error = est.positions, None, False, None, None
         if est is ref:
             aligned = True
         elif len(est) >= 3:
@@ -155,21 +158,12 @@ def aligned_curves(group: Sequence[dict], output: str | Path, gt: Trajectory | N
                 log.warning("overlay: %s repeat %s not aligned (%s)", r["name"], r.get("repeat"), exc)
             else:
                 positions, aligned = res.alignment.apply(est.T_world_cam)[:, :3, 3], True
-                ate = float(res.ate.rmse) if gt is not None else None
+                if gt is not None:
+                    ate, error_t, error = float(res.ate.rmse), res.est_aligned.timestamps, res.ate_errors
         label = f"{system} #{r.get('repeat', 0)}" + (f" (ATE {ate:.4f} m)" if ate is not None else "")
         curves.append(Curve(label + ("" if aligned else " (not aligned)"), system, int(r.get("repeat", 0)),
-                            positions, ate, aligned, mode, est.timestamps, est is ref))
+                            positions, ate, aligned, mode, est.timestamps, est is ref, error_t, error))
     return curves
-
-
-def error_over_time(curve: Curve, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """``(timestamps, error)``: the distance of each aligned position of ``curve`` from the ground
-    truth's position at the same time (associated as the ATE is, within ``EvalConfig.max_diff``);
-    its RMS is the curve's ATE."""
-    from vslam.eval.evaluate import EvalConfig
-
-    i, j = associate_timestamps(curve.timestamps, gt.timestamps, EvalConfig().max_diff)
-    return curve.timestamps[i], np.linalg.norm(curve.positions[i] - gt.positions[j], axis=1)
 
 
 def _colors(curves: Sequence[Curve]) -> list[str]:
@@ -194,7 +188,7 @@ def overlay_figure(run: str, curves: Sequence[Curve], gt: Trajectory | None, gt_
     pts = np.concatenate([c.positions for c in curves])
     gt_pos = _gt_span(gt, curves) if gt is not None else None
     a, b = top_view_axes(gt_pos if gt_pos is not None and len(gt_pos) >= 2 else pts) if len(pts) >= 2 else (0, 1)
-    errors = gt is not None and any(c.aligned for c in curves)
+    errors = any(c.error is not None for c in curves)
     fig = Figure(figsize=(7.2, 8.2 if errors else 6.0))
     FigureCanvasAgg(fig)
     grid = fig.add_gridspec(2, 1, height_ratios=(3.0, 1.1)) if errors else None
@@ -217,16 +211,16 @@ def overlay_figure(run: str, curves: Sequence[Curve], gt: Trajectory | None, gt_
         f"no ground truth: aligned to {next((c for c in curves if c.reference), curves[0]).label} ({modes})"
     ax.set_title(f"{run}: {len(curves)} trajectories from above, {ref}", fontsize=10)
     if errors:
-        _error_panel(fig.add_subplot(grid[1]), curves, gt)
+        _error_panel(fig.add_subplot(grid[1]), curves)
     if gt is not None and gt_source:
         fig.suptitle(f"ground truth: {gt_source}", fontsize=8, color="0.3")
     fit_titles(fig)
     return fig
 
 
-def _error_panel(ax, curves: Sequence[Curve], gt: Trajectory) -> None:
-    """Each aligned curve's position error over time (seconds from the first pose drawn)."""
-    series = [(color, *error_over_time(c, gt)) for c, color in zip(curves, _colors(curves)) if c.aligned]
+def _error_panel(ax, curves: Sequence[Curve]) -> None:
+    """Each curve's position error against the ground truth over time (seconds from the first pose)."""
+    series = [(color, c.error_t, c.error) for c, color in zip(curves, _colors(curves)) if c.error is not None]
     t0 = min((t[0] for _, t, _ in series if len(t)), default=0.0)
     for color, t, err in series:
         line = _with_gaps(t, np.column_stack([t - t0, err]))
