@@ -234,6 +234,17 @@ def test_comparison_table_marks_paced_baselines():
     assert "vslam vs baseline" not in results_markdown(rows[2:])
 
 
+def _wavy_path(n: int, length: float, wave) -> tuple:
+    """``(timestamps, poses, ground truth)``: ``n`` poses at 10 Hz along x over ``length`` m, y = wave(t)."""
+    from vslam.trajectory import Trajectory
+
+    t = np.arange(n) * 0.1
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.linspace(0, length, n)
+    T[:, 1, 3] = wave(t)
+    return t, T, Trajectory(t, T)
+
+
 def test_common_frame_ate_scores_both_on_the_frames_both_tracked():
     """A baseline that tracks only the easy first half: on all frames ours looks worse (its error
     sits in the second half), on the frames both tracked ours is compared fairly."""
@@ -241,11 +252,7 @@ def test_common_frame_ate_scores_both_on_the_frames_both_tracked():
     from vslam.trajectory import Trajectory
 
     n = 20
-    t = np.arange(n) * 0.1
-    T = np.tile(np.eye(4), (n, 1, 1))
-    T[:, 0, 3] = np.linspace(0, 2, n)
-    T[:, 1, 3] = np.sin(t)
-    gt = Trajectory(t, T)
+    t, T, gt = _wavy_path(n, 2.0, np.sin)
     ours = T.copy()
     ours[:, 2, 3] += np.where(np.arange(n) % 2, 0.002, -0.002)  # +-2 mm everywhere
     ours[12:, 2, 3] += np.linspace(0.0, 0.3, n - 12)  # and a drift in the hard second half
@@ -266,13 +273,9 @@ def test_common_frames_tell_a_shared_error_from_independent_ones():
     from vslam.trajectory import Trajectory
 
     n = 40
-    t = np.arange(n) * 0.1
-    T = np.tile(np.eye(4), (n, 1, 1))
-    T[:, 0, 3] = np.linspace(0, 4, n)
-    T[:, 1, 3] = np.cos(t)
-    gt = Trajectory(t, T)
+    t, T, gt = _wavy_path(n, 4.0, np.cos)
     bump = np.zeros(n)
-    bump[10:20] = 0.01  # 1 cm off in z over a quarter: in the ground truth, so both "see" it
+    bump[10:20] = 0.01  # both 1 cm off in z over a quarter of the frames, as if the ground truth were wrong there
     shared = T.copy()
     shared[:, 2, 3] -= bump
     c = common_frame_ate(Trajectory(t, shared), Trajectory(t, shared.copy()), gt, "se3")
