@@ -14,7 +14,7 @@ are also compared: ``ate_between``, the RMS distance between the two aligned tra
 error there (it sits in the ground truth, the calibration or the sequence, not in either system),
 so an ATE ratio near 1 on such a row says little about which system is better. Measured
 (``benchmarks/RESULTS.md`` round 12): MH_01 stereo, 1.4 mm apart with 3.0 mm ATE each, correlation
-0.89; KITTI 07 mono, 4 cm apart with 0.30 / 0.32 m, correlation 0.99.
+0.89; KITTI 07 mono, 5 cm apart with 0.30 m each, correlation 0.99.
 
 The rows gain ``ate_common`` (m), ``common_frames``, ``ate_between`` (m) and ``error_correlation``;
 :mod:`vslam.bench.results` summarizes and tabulates them next to the all-frames figures.
