@@ -63,12 +63,17 @@ def common_frame_ate(ours: Trajectory, theirs: Trajectory, gt: Trajectory, align
     n = min(a.matched_poses, b.matched_poses)
     # the error vectors on the ground-truth poses both were matched to
     j_a, j_b = associate_timestamps(a.gt_matched.timestamps, b.gt_matched.timestamps, MAX_DIFF_S)
-    e_a = _position_errors(a)[j_a]
-    e_b = _position_errors(b)[j_b]
-    between = float(np.sqrt(np.mean(np.sum((e_a - e_b) ** 2, axis=1)))) if len(j_a) else float("nan")
-    norm = float(np.sqrt(np.mean(np.sum(e_a**2, axis=1)) * np.mean(np.sum(e_b**2, axis=1)))) if len(j_a) else 0.0
+    if not len(j_a):
+        return CommonFrames(float(a.ate.rmse), float(b.ate.rmse), int(n), float("nan"), None)
+    e_a, e_b = _position_errors(a)[j_a], _position_errors(b)[j_b]
+    norm = _rms(e_a) * _rms(e_b)
     corr = float(np.mean(np.sum(e_a * e_b, axis=1)) / norm) if norm > 0 else None
-    return CommonFrames(float(a.ate.rmse), float(b.ate.rmse), int(n), between, corr)
+    return CommonFrames(float(a.ate.rmse), float(b.ate.rmse), int(n), _rms(e_a - e_b), corr)
+
+
+def _rms(e: np.ndarray) -> float:
+    """RMS length of the rows of ``e``."""
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
 def _position_errors(result) -> np.ndarray:
