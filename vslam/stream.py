@@ -60,6 +60,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "vslam.features.orb_kernels",
     "vslam.features.orb_describe_kernels",
     "vslam.datasets.depth_kernels",
+    "vslam.datasets.png_kernels",
     "vslam.features.match_kernels",
     "vslam.features.stereo_kernels",
     "vslam.loop.vocabulary_kernels",

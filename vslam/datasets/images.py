@@ -9,6 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
+from vslam.datasets import png
 from vslam.errors import DatasetError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
@@ -107,8 +108,9 @@ def load_image(path: str | Path, grayscale: bool = False) -> np.ndarray:
     buf = _read_bytes(path, "image")
     _check_header(path, buf, "image")
     _check_not_truncated(path, buf, "image")
-    flag = cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_UNCHANGED
-    img = cv2.imdecode(buf, flag)
+    img = png.decode(buf, grayscale)  # the common PNGs, faster; None: OpenCV decodes
+    if img is None:
+        img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_UNCHANGED)
     if img is None:
         raise CorruptFrameError(f"{path}: image cannot be decoded (truncated or not an image); re-extract it")
     if img.dtype != np.uint8:
@@ -144,7 +146,9 @@ def load_depth(
     path = Path(path)
     buf = _read_bytes(path, "depth")
     _check_header(path, buf, "depth")
-    raw = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    raw = png.decode(buf, grayscale=False)
+    if raw is None:
+        raw = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise CorruptFrameError(f"{path}: depth image cannot be decoded (truncated or not a PNG); re-extract it")
     if raw.ndim != 2 or raw.dtype != np.uint16:  # one such frame is skipped like a corrupt one

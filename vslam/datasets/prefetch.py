@@ -1,8 +1,9 @@
 """Decode frames ahead of the tracker in a background thread (a bounded producer-consumer queue).
 
-Image decoding (``cv2.imdecode``) releases the GIL, so on a machine with two or more cores the
-next frames are decoded while the current one is tracked; at most ``depth`` decoded frames wait
-in the queue, so memory stays flat however long the sequence.
+Image decoding (:mod:`vslam.datasets.png`'s inflate and kernel, or ``cv2.imdecode``) releases
+the GIL, so on a machine with two or more cores the next frames are decoded while the current one
+is tracked; at most ``depth`` decoded frames wait in the queue, so memory stays flat however long
+the sequence.
 
 The wrapped iterator keeps the reader's semantics: frames come in the same order, a corrupt
 frame the reader skips is still skipped (and counted by the reader), and an exception the reader
