@@ -99,6 +99,33 @@ def test_every_filter_type_decodes_as_opencv(kind, filters):
         np.testing.assert_array_equal(png.decode(data, grayscale=True), _opencv(data, grayscale=True))
 
 
+_HINTS = {  # chunk -> its data for (grey8, grey16, rgb8)
+    b"gAMA": (struct.pack(">I", 45455),) * 3,
+    b"cHRM": (struct.pack(">8I", 31270, 32900, 64000, 33000, 30000, 60000, 15000, 6000),) * 3,
+    b"sRGB": (b"\x00",) * 3,
+    b"iCCP": (b"profile\x00\x00" + zlib.compress(bytes(200)),) * 3,
+    b"bKGD": (struct.pack(">H", 100), struct.pack(">H", 40000), struct.pack(">3H", 1, 2, 3)),
+    b"sBIT": (b"\x05", b"\x0c", b"\x05\x05\x05"),
+    b"pHYs": (struct.pack(">IIB", 2835, 2835, 1),) * 3,
+    b"tIME": (struct.pack(">HBBBBB", 2026, 11, 29, 7, 30, 0),) * 3,
+    b"zTXt": (b"Comment\x00\x00" + zlib.compress(b"vslam"),) * 3,
+    b"iTXt": (b"Comment\x00\x00\x00\x00\x00vslam",) * 3,
+}
+
+
+@pytest.mark.parametrize("chunk", sorted(_HINTS))
+def test_chunks_opencv_does_not_apply_keep_the_fast_path(chunk):
+    """Colour-space and display hints, text, time, pixel size: OpenCV decodes the same pixels with
+    them, so they are decoded here too (``png._HARMLESS``)."""
+    assert chunk in png._HARMLESS
+    for data_of, img in zip(_HINTS[chunk], _images(np.random.default_rng(11)).values()):
+        data = _png(img, extra=((chunk, data_of),))
+        for grey in (False, True) if img.ndim == 2 and img.dtype == np.uint8 else (False,):
+            ours = png.decode(data, grayscale=grey)
+            assert ours is not None
+            np.testing.assert_array_equal(ours, _opencv(data, grayscale=grey))
+
+
 @pytest.mark.parametrize("level", [0, 1, 9])
 def test_libpng_files_decode_as_opencv(tmp_path, level):
     """OpenCV's own PNGs (libpng's adaptive filter choice) of an image with texture and flat parts."""

@@ -12,9 +12,9 @@ every filter type and on the shared sequences.
 
 :func:`decode` returns None for anything else, and the caller decodes with OpenCV, which also
 reports damaged files: other colour types and bit depths, interlaced images, a chunk that could
-change what OpenCV returns (``tRNS``, ``sBIT``, ``eXIf``, ``PLTE`` ... anything but ``IHDR``,
-``IDAT``, ``IEND`` and text, time and ``pHYs`` chunks), a truncated file, a stream whose checksum
-or length is wrong. It also returns None without python-isal (as in the ORB-SLAM3 baseline's
+change what OpenCV returns (``tRNS``, ``eXIf``, ``PLTE``, an unknown one: anything outside
+:data:`_HARMLESS` and ``IHDR``, ``IDAT``, ``IEND``), a truncated file, a stream whose checksum or
+length is wrong. It also returns None without python-isal (as in the ORB-SLAM3 baseline's
 environment, ``benchmarks/BASELINE.md``, which then decodes with OpenCV, like ORB-SLAM3's own
 ``cv::imread``).
 """
@@ -30,8 +30,11 @@ except ImportError:  # pragma: no cover - isal is a dependency; without it OpenC
     _zlib = None
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: chunks that do not change OpenCV's decoded pixels (text, time stamp, physical pixel size)
-_HARMLESS = frozenset((b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs"))
+#: chunks that do not change OpenCV's decoded pixels of the types decoded here: text, time stamp,
+#: pixel size, and colour-space and display hints that OpenCV does not apply (each one compared with
+#: OpenCV in ``tests/datasets/test_png_kernels.py``)
+_HARMLESS = frozenset((b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs", b"gAMA", b"cHRM", b"sRGB", b"iCCP", b"bKGD",
+                       b"sBIT"))
 #: (colour type, bit depth) -> bytes per pixel, for the types decoded here: grey 8 / 16, RGB 8
 _BPP = {(0, 8): 1, (0, 16): 2, (2, 8): 3}
 
