@@ -96,6 +96,18 @@ def _check_not_truncated(path: Path, buf: np.ndarray, what: str) -> None:
             raise CorruptFrameError(f"{path}: {what} JPEG is truncated (no end-of-image marker); re-extract it")
 
 
+def _decode(buf: np.ndarray, grayscale: bool) -> np.ndarray | None:
+    """``cv2.imdecode`` with ``IMREAD_GRAYSCALE`` / ``IMREAD_UNCHANGED``: the common PNGs by
+    :mod:`vslam.datasets.png` (the same pixels, faster), everything else by OpenCV; None when
+    neither can decode it."""
+    import cv2
+
+    img = png.decode(buf, grayscale)
+    if img is not None:
+        return img
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_UNCHANGED)
+
+
 def load_image(path: str | Path, grayscale: bool = False) -> np.ndarray:
     """Decode an 8-bit image as stored (``(H, W)`` gray or ``(H, W, 3)`` BGR), or raise.
 
@@ -108,9 +120,7 @@ def load_image(path: str | Path, grayscale: bool = False) -> np.ndarray:
     buf = _read_bytes(path, "image")
     _check_header(path, buf, "image")
     _check_not_truncated(path, buf, "image")
-    img = png.decode(buf, grayscale)  # the common PNGs, faster; None: OpenCV decodes
-    if img is None:
-        img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_UNCHANGED)
+    img = _decode(buf, grayscale)
     if img is None:
         raise CorruptFrameError(f"{path}: image cannot be decoded (truncated or not an image); re-extract it")
     if img.dtype != np.uint8:
@@ -141,14 +151,10 @@ def load_depth(
             16-bit (an 8-bit, colour or float32 TIFF frame) or has the wrong size; the dataset
             iterator skips and counts such a frame (fatal only for the first frame or too many).
     """
-    import cv2
-
     path = Path(path)
     buf = _read_bytes(path, "depth")
     _check_header(path, buf, "depth")
-    raw = png.decode(buf, grayscale=False)
-    if raw is None:
-        raw = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    raw = _decode(buf, grayscale=False)
     if raw is None:
         raise CorruptFrameError(f"{path}: depth image cannot be decoded (truncated or not a PNG); re-extract it")
     if raw.ndim != 2 or raw.dtype != np.uint16:  # one such frame is skipped like a corrupt one
