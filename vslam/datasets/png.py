@@ -71,10 +71,10 @@ def decode(buf: np.ndarray | bytes, grayscale: bool) -> np.ndarray | None:
     """The image of the PNG file content ``buf`` as ``cv2.imdecode`` gives it (``grayscale``:
     ``IMREAD_GRAYSCALE``, else ``IMREAD_UNCHANGED``): ``(H, W)`` uint8 or uint16, ``(H, W, 3)``
     uint8 BGR; or None where OpenCV must decode it (module docstring)."""
-    from vslam.datasets.png_kernels import unfilter
-
     if _zlib is None or not is_png(buf):
         return None
+    from vslam.datasets.png_kernels import unfilter
+
     found = _chunks(memoryview(buf).cast("B"))
     if found is None:
         return None
