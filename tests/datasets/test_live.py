@@ -132,7 +132,9 @@ def test_live_run_poses_match_ground_truth(monkeypatch, camera_yaml, tmp_path):
     assert len(traj) == s["frames"]
     gt = _sequence()[1]
     ate = _sim3_ate(traj, gt)
-    assert 0.01 < ate < 0.04  # 0.022 with all 40 frames
+    assert ate < 0.04  # 0.022 with all 40 frames
+    if s["dropped_frames"] == 0:  # fewer frames under load: a shorter path, 0.0094 m seen with two busy cores
+        assert ate > 0.01  # not the ground truth against itself
     assert (out / "map").is_dir() and (out / "keyframes.txt").is_file()
     assert res.stats["dropped_frames"] == s["dropped_frames"]
     assert "mode: realtime" in (out / "config.yaml").read_text()
