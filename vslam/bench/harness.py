@@ -365,14 +365,22 @@ def start_local_ray(num_cpus: int, temp_dir: Path | None = None, tries: int = 2)
     ``tries`` times, then refused with one line. ``num_workers_soft_limit`` stays at ``num_cpus``:
     by default a task that asks for every CPU makes Ray kill the idle workers and spawn new ones for
     the next tasks (a cold worker: its start-up and imports beside the running task; issue #26's
-    fleet finalize 1.0 -> 1.3-1.8 s)."""
+    fleet finalize 1.0 -> 1.3-1.8 s).
+
+    The raylet connects to its own object store through a client that, when the store is not
+    listening yet, waits ``raylet_client_connect_timeout_milliseconds`` (1000) before it tries again:
+    a second lost in about one start of three (``ray.init`` 2.0-2.2 s or 3.0-3.2 s; ray 2.60.0,
+    benchmarks/RESULTS.md round 13). It tries every 100 ms here, as often as 10 s allow (as the
+    default's 10 x 1 s): 16 starts of 16 took 2.0-2.2 s."""
     import ray
 
     tmp = temp_dir or Path(tempfile.mkdtemp(prefix="vslam-ray-"))
+    config = {"num_workers_soft_limit": num_cpus, "raylet_client_connect_timeout_milliseconds": 100,
+              "raylet_client_num_connect_attempts": 100}
     for attempt in range(1, tries + 1):
         try:
             ray.init(num_cpus=num_cpus, include_dashboard=False, _temp_dir=str(tmp), log_to_driver=False,
-                     configure_logging=False, _system_config={"num_workers_soft_limit": num_cpus})
+                     configure_logging=False, _system_config=config)
             return tmp
         except RuntimeError as exc:  # e.g. "Timed out waiting for file .../gcs_server_port_..."
             ray.shutdown()
