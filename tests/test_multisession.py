@@ -255,7 +255,7 @@ def test_a_last_wave_with_idle_workers_beside_it_prefetches_in_a_thread() -> Non
     from vslam.multisession.sessions import session_prefetches
 
     assert session_prefetches("local", 2, 5, cpus=2) == ["none"] * 4 + ["thread"]
-    assert session_prefetches("ray", 2, 5, cpus=2) == ["none"] * 4 + ["thread"]  # that task asks for 2 CPUs
+    assert session_prefetches("ray", 2, 5, cpus=2) == ["none"] * 4 + ["thread"]  # it asks Ray for one CPU
     assert session_prefetches("local", 2, 4, cpus=2) == ["none"] * 4
     assert session_prefetches("local", 3, 5, cpus=3) == ["none"] * 5  # 2 tasks, 1 idle worker
     assert session_prefetches("local", 4, 5, cpus=4) == ["none"] * 4 + ["thread"]

@@ -120,13 +120,12 @@ class TaskExecutor:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
-    def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any],
-            cpus: Sequence[int] | None = None) -> list:
-        """``[fn(*args) for args in args_list]``, run as tasks (:meth:`submit`, all at once, the
-        ``i``-th asking for ``cpus[i]`` CPUs); results in the order of ``args_list``. A worker that
-        dies breaks the local pool: the tasks it had not finished run again, each alone in a fresh
-        process, so only the one that kills its process fails."""
-        tasks = [self.submit(fn, args, on_error, cpus[i] if cpus else 1) for i, args in enumerate(args_list)]
+    def map(self, fn: Callable, args_list: Sequence[tuple], on_error: Callable[[tuple, str], Any]) -> list:
+        """``[fn(*args) for args in args_list]``, run as tasks (:meth:`submit`, all at once, one CPU
+        each); results in the order of ``args_list``. A worker that dies breaks the local pool: the
+        tasks it had not finished run again, each alone in a fresh process, so only the one that
+        kills its process fails."""
+        tasks = [self.submit(fn, args, on_error) for args in args_list]
         out = []
         for task in tasks:
             while not task.done:

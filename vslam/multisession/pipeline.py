@@ -42,8 +42,7 @@ def _run_sessions(ex: TaskExecutor, specs: list[SessionSpec], root: Path, config
             todo.append(i)
     prefetch = session_prefetches(ex.kind, ex.slots if ex.kind == "ray" else ex.workers, len(todo))
     done = ex.map(run_session, [(specs[i], str(root / specs[i].name), config, overrides, mode)
-                                for i, mode in zip(todo, prefetch)], _failed_session,
-                  [2 if mode == "thread" and ex.kind == "ray" else 1 for mode in prefetch])
+                                for i, mode in zip(todo, prefetch)], _failed_session)
     for i, r in zip(todo, done):
         records[i] = r
     out: list[dict] = [r for r in records if r is not None]

@@ -209,8 +209,14 @@ def session_prefetches(kind: str, workers: int, n: int, cpus: int | None = None)
     :func:`session_prefetch`, except for a last wave with fewer tasks than workers. The last
     ``n % workers`` tasks run beside idle workers, and each gets a prefetch thread when there is an
     idle core for every one of them (``2 x tail <= workers``, and ``workers <= cpus`` for the local
-    executor; such a Ray task asks for 2 CPUs). Example: 5 sessions on 2 workers, the fifth runs alone
-    on both cores (7-Scenes, 280 frames: 2.9 s instead of 4.3-5.0 s, the same trajectory)."""
+    executor). Example: 5 sessions on 2 workers, the fifth runs alone on both cores (7-Scenes, 280
+    frames: 2.9 s instead of 4.3-5.0 s, the same trajectory).
+
+    Such a task asks Ray for one CPU, like the others, and takes the second core as the other
+    workers finish. Asking for two put it in a scheduling class of its own, which Ray does not keep
+    in submission order: on the 16-arc fleet it started second, and one worker stood idle while it
+    waited for both CPUs and ran (0.49 s; the tracking stage 6.61 -> 6.32 s on average over three
+    alternated runs, benchmarks/RESULTS.md round 14)."""
     cpus = cpus if cpus is not None else (os.cpu_count() or 1)
     modes = [session_prefetch(kind, workers, cpus)] * n
     tail = n % max(workers, 1)
