@@ -145,8 +145,9 @@ class TaskExecutor:
 
     def submit(self, fn: Callable, args: tuple, on_error: Callable[[tuple, str], Any], cpus: int = 1) -> Pending:
         """Start ``fn(*args)`` as a task and return at once (``workers=0``: run it now, inline).
-        ``cpus``: the CPUs a Ray task asks for (a task that runs a second thread asks for 2); a
-        local task runs in one of the pool's processes whatever it asks."""
+        ``cpus``: the CPUs a Ray task asks for (a merge that verifies in a second thread while no
+        other task runs asks for 2, :mod:`vslam.multisession.tree_merge`); a local task runs in one
+        of the pool's processes whatever it asks."""
         task = Pending(fn, tuple(args), on_error)
         if self.kind == "ray":
             if fn not in self._remotes:
