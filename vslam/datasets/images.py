@@ -60,7 +60,7 @@ def image_header_size(buf: bytes | np.ndarray) -> tuple[int, int] | None:
     """``(width, height)`` from a PNG (IHDR) or JPEG (SOFn) header, without decoding; None for
     other formats or a header that cannot be parsed."""
     data = bytes(buf[:1 << 16]) if not isinstance(buf, bytes) else buf[:1 << 16]
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
+    if data[:8] == png.SIGNATURE and len(data) >= 24 and data[12:16] == b"IHDR":
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if data[:2] == b"\xff\xd8":
         i = 2

@@ -39,10 +39,6 @@ _HARMLESS = frozenset((b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs", b"gAMA", b"c
 _BPP = {(0, 8): 1, (0, 16): 2, (2, 8): 3}
 
 
-def is_png(buf: np.ndarray | bytes) -> bool:
-    return bytes(buf[:8]) == SIGNATURE
-
-
 def _chunks(buf: memoryview) -> tuple[bytes, list[memoryview]] | None:
     """``(IHDR data, [IDAT data, ...])`` up to ``IEND``; None for a truncated file or a chunk
     outside the decoded set (module docstring). CRCs are not checked: the zlib stream's own
@@ -71,7 +67,7 @@ def decode(buf: np.ndarray | bytes, grayscale: bool) -> np.ndarray | None:
     """The image of the PNG file content ``buf`` as ``cv2.imdecode`` gives it (``grayscale``:
     ``IMREAD_GRAYSCALE``, else ``IMREAD_UNCHANGED``): ``(H, W)`` uint8 or uint16, ``(H, W, 3)``
     uint8 BGR; or None where OpenCV must decode it (module docstring)."""
-    if _zlib is None or not is_png(buf):
+    if _zlib is None or bytes(buf[:8]) != SIGNATURE:
         return None
     from vslam.datasets.png_kernels import unfilter
 
